@@ -1,0 +1,36 @@
+"""The `jaxquad` command: a thin dispatcher; each subcommand's module is imported only when used."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# subcommand -> module defining `add_arguments(parser)` and `run(args) -> int`.
+_COMMANDS: dict[str, tuple[str, str]] = {
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="jaxquad", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    # Build every subparser lazily: only the chosen command's module is imported.
+    argv = sys.argv[1:] if argv is None else argv
+    chosen = next((a for a in argv if not a.startswith("-")), None)
+    modules = {}
+    for name, (module, help_) in _COMMANDS.items():
+        p = sub.add_parser(name, help=help_)
+        if name == chosen:
+            modules[name] = importlib.import_module(module)
+            modules[name].add_arguments(p)
+    args = parser.parse_args(argv)
+    try:
+        return int(modules[args.command].run(args) or 0)
+    except (ValueError, FileNotFoundError) as e:
+        # Known input errors: one line, exit 1 (tracebacks are for bugs).
+        print(f"jaxquad {args.command}: error: {e}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Robot descriptions (MJCF) and their loader."""

@@ -1,0 +1,1 @@
+"""MJX fleet simulator: robots walking through generated worlds, with the sensors the estimators use."""
