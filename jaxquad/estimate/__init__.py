@@ -1,0 +1,1 @@
+"""Contact estimation and leg-inertial odometry over robot logs, scoring and tuning."""

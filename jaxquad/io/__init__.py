@@ -1,0 +1,1 @@
+"""File formats: TUM trajectories, robot logs (.npz), occupancy maps (PGM + YAML)."""

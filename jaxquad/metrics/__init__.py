@@ -1,0 +1,1 @@
+"""Trajectory evaluation with the definitions of evo: association, Umeyama alignment, APE, RPE."""
