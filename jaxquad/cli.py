@@ -8,6 +8,7 @@ import sys
 
 # subcommand -> module defining `add_arguments(parser)` and `run(args) -> int`.
 _COMMANDS: dict[str, tuple[str, str]] = {
+    "bench": ("jaxquad.bench", "time the kernels (compile and steady run) for one robot and batches"),
 }
 
 
