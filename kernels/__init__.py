@@ -1,1 +1,2 @@
 """Pure jitted math for one robot: contact observer, leg twist, scan slicing. `vmap` at the call site."""
+from jaxquad.kernels.raycast import Boxes, cast_depth, pinhole_rays, ray_distance
