@@ -1,1 +1,3 @@
 """File formats: TUM trajectories, robot logs (.npz), occupancy maps (PGM + YAML)."""
+from jaxquad.io.log import load_log, robot_log, save_log, validate_log
+from jaxquad.io.maps import OccupancyMap, load_map, save_map
