@@ -1,3 +1,4 @@
 """File formats: TUM trajectories, robot logs (.npz), occupancy maps (PGM + YAML)."""
 from jaxquad.io.log import load_log, robot_log, save_log, validate_log
 from jaxquad.io.maps import OccupancyMap, load_map, save_map
+from jaxquad.io.tum import TumTrajectory, read_tum, write_tum
