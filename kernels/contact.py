@@ -1,0 +1,221 @@
+"""Foot contact from a generalized-momentum disturbance observer (paper Sec. III-A), for one robot.
+
+Model and sign convention. With M vdot + C v + g = S^T tau + J^T f, where f is the ground-reaction
+force acting *on* each foot, the generalized momentum p = M v obeys
+    dp/dt = tau_bar + J^T f,        tau_bar = S^T tau + C^T v - g.
+The paper writes -J^T f with f the force the foot exerts on the ground; the two are the same law
+with f_here = -f_paper. Only the world-z component per foot is estimated, f_z (F,), so J enters
+through its world-z rows J_z (F, nv). A foot pressing on the ground gives f_z > 0.
+
+Observer (continuous time), residual r = p - p_hat:
+    plain:  p_hat' = tau_bar + J_z^T f_hat + 2 b r,          f_hat' = b^2 P r
+    mixed:  p_hat' = tau_bar + J_z^T f_hat + b k1(r),        f_hat' = b^2 P k2(r)
+with k1(s) = sgn(s)|s|^(1/2) + s, k2(s) = sgn(s) + k1(s) elementwise, b the bandwidth (rad/s) and
+P = (J_z J_z^T + lambda I)^-1 J_z the damped least-squares map from generalized coordinates to foot
+z forces. In the plain observer the in-range error obeys y'' + 2b y' + b^2 y = 0 (critically damped).
+The discontinuous sgn in k2 is smoothed as tanh(sharpness s); sgn(s)|s|^(1/2) in k1 is continuous
+and is used as is.
+
+Integrator (one step, inputs sampled at the new time t_k, dt = t_k - t_{k-1}; h = b dt):
+  1. open-loop prediction  p_pred = p_hat + dt (tau_bar + J_z^T f_hat)
+  2. implicit (backward Euler) residual correction, elementwise and in closed form: the new residual
+     r solves r + dt b k1(r) = s with s = p - p_pred, and p_hat <- p - r.
+        plain: r = s / (1 + 2h)
+        mixed: sgn(r)|r|^(1/2) = 2 s / (h + sqrt(h^2 + 4 (1 + h) |s|)),  r = that * |that|
+  3. force update with the new residual  f_hat <- f_hat + dt b^2 P k2(r)   (plain: k2(r) = r).
+Why: k1 has infinite slope at r = 0, so explicit Euler on it chatters for any dt; the implicit
+correction contracts the residual without overshoot and its sqrt is evaluated at an argument >= h^2,
+so values and gradients stay finite at zero residual. For the plain observer the scheme is stable for
+h < 2 + 2 sqrt(2) (explicit Euler: h < 2), which covers b = 100 rad/s at dt = 5 ms (h = 0.5), and it
+converges to the continuous observer at first order in dt.
+
+Post-processing as in the paper: the force is clipped to [0, f_max] (the observer's own f_hat is not
+clipped, which would bias its linear dynamics), smoothed per foot by f_filt = alpha f + (1 - alpha)
+f_filt_prev, and compared with per-foot thresholds. Optional hysteresis: contact turns on above
+threshold_on and off below threshold_off (equal thresholds = no hysteresis). The soft output
+sigmoid((f_filt - threshold) / soft_temperature) uses the threshold active for the previous contact
+state, so it equals sigmoid((f_filt - threshold_on) / T) without hysteresis.
+
+A step whose inputs are not all finite (or whose dt is not positive) leaves the state unchanged and
+reports valid = False; the estimate then repeats the previous one.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+_MODES = ("plain", "mixed")
+# Floor on h = b dt: keeps the implicit sqrt and its gradient finite if a sweep reaches b = 0.
+_MIN_H = 1e-6
+# Stand-in dt while a step is rejected, so no NaN reaches the (discarded) arithmetic or gradients.
+_SAFE_DT = 1e-3
+
+
+class ObserverParams(eqx.Module):
+    """Tunable numbers of the contact observer; every number is a traced leaf, `mode` is static.
+
+    bandwidth: b (rad/s), > 0. sharpness: slope of tanh that smooths sgn in k2 (per unit of
+    momentum residual). f_max: clip of the estimated force (N). alpha (F,): per-foot smoothing
+    factor in (0, 1]. threshold_on / threshold_off (F,): contact thresholds on the smoothed force (N).
+    soft_temperature: width of the soft contact sigmoid (N). pinv_damping: lambda of the damped
+    least-squares map to foot forces (m^2, J_z rows are in m per unit of generalized velocity).
+    mode: "plain" (linear high-gain) or "mixed" (high-gain + sliding-mode)."""
+
+    bandwidth: Float[Array, ""] = eqx.field(converter=jnp.asarray)
+    sharpness: Float[Array, ""] = eqx.field(converter=jnp.asarray)
+    f_max: Float[Array, ""] = eqx.field(converter=jnp.asarray)
+    alpha: Float[Array, "F"] = eqx.field(converter=jnp.asarray)
+    threshold_on: Float[Array, "F"] = eqx.field(converter=jnp.asarray)
+    threshold_off: Float[Array, "F"] = eqx.field(converter=jnp.asarray)
+    soft_temperature: Float[Array, ""] = eqx.field(converter=jnp.asarray)
+    pinv_damping: Float[Array, ""] = eqx.field(converter=jnp.asarray)
+    mode: Literal["plain", "mixed"] = eqx.field(static=True, default="mixed")
+
+    def __check_init__(self):
+        if self.mode not in _MODES:
+            raise ValueError(f"ObserverParams.mode must be one of {_MODES}, got {self.mode!r}")
+
+    @classmethod
+    def paper(
+        cls, n_feet: int = 4, mode: Literal["plain", "mixed"] = "mixed", bandwidth: float = 30.0
+    ) -> ObserverParams:
+        """The paper's published defaults (facts.md Sec. 3): b = 30 rad/s, tanh sharpness 100,
+        clip at 100 N, alpha 0.2 on front feet and 0.1 on rear feet, 1 N threshold on every foot
+        (no hysteresis). Feet are ordered front before rear (FL, FR, RL, RR), so n_feet is even.
+        soft_temperature 0.25 N and pinv_damping 1e-4 m^2 are this library's choices."""
+        if n_feet < 2 or n_feet % 2:
+            raise ValueError(f"ObserverParams.paper needs an even number of feet (front, rear), got {n_feet}")
+        half = n_feet // 2
+        alpha = jnp.concatenate([jnp.full(half, 0.2), jnp.full(half, 0.1)])
+        return cls(
+            bandwidth=jnp.asarray(bandwidth, jnp.float32),
+            sharpness=jnp.asarray(100.0, jnp.float32),
+            f_max=jnp.asarray(100.0, jnp.float32),
+            alpha=alpha.astype(jnp.float32),
+            threshold_on=jnp.full(n_feet, 1.0, jnp.float32),
+            threshold_off=jnp.full(n_feet, 1.0, jnp.float32),
+            soft_temperature=jnp.asarray(0.25, jnp.float32),
+            pinv_damping=jnp.asarray(1e-4, jnp.float32),
+            mode=mode,
+        )
+
+
+class ObserverState(eqx.Module):
+    """Observer state between steps. p_hat: estimated generalized momentum (nv,). f_hat: unclipped
+    z-force estimate per foot (N). f_filt: smoothed clipped force (N). contact: hysteresis state.
+    contact_soft: last soft contact, repeated when a step is rejected."""
+
+    p_hat: Float[Array, "nv"]
+    f_hat: Float[Array, "F"]
+    f_filt: Float[Array, "F"]
+    contact: Bool[Array, "F"]
+    contact_soft: Float[Array, "F"]
+
+
+class ContactEstimate(eqx.Module):
+    """Output of one step. force_z: estimate clipped to [0, f_max] (N). force_z_filtered: smoothed
+    (N). contact: thresholded with hysteresis. contact_soft: differentiable contact in (0, 1).
+    valid: False when this step's inputs were rejected (state held)."""
+
+    force_z: Float[Array, "F"]
+    force_z_filtered: Float[Array, "F"]
+    contact: Bool[Array, "F"]
+    contact_soft: Float[Array, "F"]
+    valid: Bool[Array, ""]
+
+
+def _implicit_residual(
+    s: Float[Array, "nv"], h: Float[Array, ""], mode: str
+) -> tuple[Float[Array, "nv"], Float[Array, "nv"]]:
+    """Solve r + h k1(r) = s elementwise; returns (r, sgn(r)|r|^(1/2)) (the second only in mixed)."""
+    if mode == "plain":
+        return s / (1.0 + 2.0 * h), jnp.zeros_like(s)
+    # (1 + h) u^2 + h u - |s| = 0 with u = |r|^(1/2); rationalised root, no cancellation at small s.
+    root = 2.0 * s / (h + jnp.sqrt(h * h + 4.0 * (1.0 + h) * jnp.abs(s)))
+    return root * jnp.abs(root), root
+
+
+def _postprocess(
+    params: ObserverParams, force: Float[Array, "F"], f_filt_prev: Float[Array, "F"], contact_prev: Bool[Array, "F"]
+) -> tuple[Float[Array, "F"], Bool[Array, "F"], Float[Array, "F"]]:
+    """Smooth the clipped force, threshold it with hysteresis, and give the soft contact."""
+    f_filt = params.alpha * force + (1.0 - params.alpha) * f_filt_prev
+    threshold = jnp.where(contact_prev, params.threshold_off, params.threshold_on)
+    contact = f_filt > threshold
+    soft = jax.nn.sigmoid((f_filt - threshold) / params.soft_temperature)
+    return f_filt, contact, soft
+
+
+class ContactObserver(eqx.Module):
+    """Pure init/step of the contact observer for one robot; vmap over robots or params outside,
+    `lax.scan` over time."""
+
+    def init(self, params: ObserverParams, p0: Float[Array, "nv"], n_feet: int) -> ObserverState:
+        """State at rest: p_hat = p0 (the first measured momentum), zero force, no contact."""
+        p0 = jnp.asarray(p0)
+        if p0.ndim != 1:
+            raise ValueError(f"p0 must have shape (nv,), got {p0.shape}")
+        if params.alpha.shape != (n_feet,):
+            raise ValueError(f"params are for {params.alpha.shape} feet, init was given n_feet={n_feet}")
+        dtype = jnp.result_type(p0.dtype, jnp.float32)
+        zeros = jnp.zeros(n_feet, dtype)
+        return ObserverState(
+            p_hat=p0.astype(dtype), f_hat=zeros, f_filt=zeros, contact=jnp.zeros(n_feet, bool), contact_soft=zeros
+        )
+
+    def step(
+        self,
+        params: ObserverParams,
+        state: ObserverState,
+        p: Float[Array, "nv"],
+        tau_bar: Float[Array, "nv"],
+        J_z: Float[Array, "F nv"],
+        dt: float | Float[Array, ""],
+    ) -> tuple[ObserverState, ContactEstimate]:
+        """Advance one sample. p = M v (generalized momentum), tau_bar = S^T tau + C^T v - g,
+        J_z = world-z rows of the foot point Jacobians, all at the new sample time; dt in s."""
+        nv, n_feet = state.p_hat.shape[0], state.f_hat.shape[0]
+        if p.shape != (nv,) or tau_bar.shape != (nv,) or J_z.shape != (n_feet, nv):
+            raise ValueError(
+                f"expected p ({nv},), tau_bar ({nv},), J_z ({n_feet}, {nv}); "
+                f"got {p.shape}, {tau_bar.shape}, {J_z.shape}"
+            )
+        dt = jnp.asarray(dt, state.p_hat.dtype)
+        valid = (
+            jnp.all(jnp.isfinite(p)) & jnp.all(jnp.isfinite(tau_bar)) & jnp.all(jnp.isfinite(J_z))
+            & jnp.isfinite(dt) & (dt > 0)
+        )
+        # Rejected inputs are replaced before any arithmetic so NaN cannot leak into gradients.
+        p = jnp.where(valid, p, state.p_hat)
+        tau_bar = jnp.where(valid, tau_bar, 0.0)
+        J_z = jnp.where(valid, J_z, 0.0)
+        dt = jnp.where(valid, dt, _SAFE_DT)
+
+        b = params.bandwidth
+        h = jnp.maximum(b * dt, _MIN_H)
+        p_pred = state.p_hat + dt * (tau_bar + J_z.T @ state.f_hat)
+        r, root = _implicit_residual(p - p_pred, h, params.mode)
+        if params.mode == "plain":
+            k2 = r
+        else:
+            k2 = jnp.tanh(params.sharpness * r) + root + r
+        gram = J_z @ J_z.T + params.pinv_damping * jnp.eye(n_feet, dtype=J_z.dtype)
+        f_hat = state.f_hat + dt * b * b * jnp.linalg.solve(gram, J_z @ k2)
+        p_hat = p - r
+
+        f_filt, contact, soft = _postprocess(params, jnp.clip(f_hat, 0.0, params.f_max), state.f_filt, state.contact)
+        new = ObserverState(p_hat=p_hat, f_hat=f_hat, f_filt=f_filt, contact=contact, contact_soft=soft)
+        new = jax.tree.map(lambda a, o: jnp.where(valid, a, o), new, state)
+        estimate = ContactEstimate(
+            force_z=jnp.clip(new.f_hat, 0.0, params.f_max),
+            force_z_filtered=new.f_filt,
+            contact=new.contact,
+            contact_soft=new.contact_soft,
+            valid=valid,
+        )
+        return new, estimate
