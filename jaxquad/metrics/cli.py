@@ -1,0 +1,57 @@
+"""`jaxquad eval REF.tum EST.tum`: the paper's trajectory metrics (ATE, ARE, APE, RPE) as evo computes them."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("ref", help="reference trajectory (TUM: timestamp tx ty tz qx qy qz qw)")
+    parser.add_argument("est", help="estimated trajectory (TUM)")
+    parser.add_argument(
+        "--align", default="se3", choices=("se3", "sim3", "scale", "origin", "none"),
+        help="alignment of the estimate to the reference (default: se3 Umeyama)",
+    )
+    parser.add_argument(
+        "--delta", type=float, nargs="+", default=[2.0, 5.0, 10.0], metavar="D",
+        help="RPE deltas (default: 2 5 10), in travelled metres unless --delta-unit frames",
+    )
+    parser.add_argument("--delta-unit", default="m", choices=("m", "frames"), help="unit of --delta (default: m)")
+    parser.add_argument("--all-pairs", action="store_true", help="RPE over all pairs instead of consecutive ones")
+    parser.add_argument(
+        "--max-diff", type=float, default=0.01, metavar="S",
+        help="max. time difference in seconds when associating stamps (default: 0.01)",
+    )
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--plot", metavar="OUT.png", help="write the xy trajectories and the error over time")
+
+
+def _table(d: dict) -> str:
+    cols = ("rmse", "mean", "median", "std", "min", "max")
+    names = {"ate": "ATE (m)", "are": "ARE (rad)", "are_deg": "ARE (deg)", "ape": "APE (full)"}
+    rows = [(names[k], d[k]) for k in names]
+    rows += [(f"RPE {k[4:]}", v) for k, v in d.items() if k.startswith("rpe_")]
+    width = max(len(r[0]) for r in rows)
+    lines = [" " * width + "".join(f"{c:>12}" for c in cols)]
+    lines += [name.ljust(width) + "".join(f"{s[c]:12.6g}" for c in cols) for name, s in rows]
+    a = d["alignment"]
+    lines.append(f"{d['n_pairs']} associated poses; alignment {a['mode']}, scale {a['scale']:.9g}")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    from jaxquad.io.tum import read_tum
+    from jaxquad.metrics._evaluate import evaluate
+
+    ev = evaluate(
+        read_tum(args.ref), read_tum(args.est), align=args.align, deltas=args.delta,
+        delta_unit=args.delta_unit, all_pairs=args.all_pairs, max_diff_s=args.max_diff,
+    )
+    d = ev.to_dict()
+    print(json.dumps(d) if args.json else _table(d))
+    if args.plot:
+        from jaxquad.metrics.plot import plot_evaluation
+
+        plot_evaluation(ev, args.plot)
+    return 0
