@@ -9,6 +9,7 @@ import sys
 # subcommand -> module defining `add_arguments(parser)` and `run(args) -> int`.
 _COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("jaxquad.bench", "time the kernels (compile and steady run) for one robot and batches"),
+    "eval": ("jaxquad.metrics.cli", "ATE/ARE/APE/RPE of an estimated TUM trajectory against a reference, as evo"),
 }
 
 
