@@ -1,0 +1,192 @@
+"""Laser scans sliced from a depth image: the unstabilized baseline, the IMU-stabilized band, and a
+gravity-levelled scan.
+
+Conventions.
+  Camera frame: x right, y down, z forward (optical axis); pixel (u, v) has u growing to the right
+  and v growing down, origin at the top-left pixel centre; depth is z in metres (0 = no reading).
+  Base frame: x forward, y left, z up. The camera looks along the base x axis, so
+  x_cam = -y_base, y_cam = -z_base, z_cam = x_base (mount offsets do not change directions).
+  roll and pitch (rad) are the base's ZYX Euler angles as the IMU reports them,
+  R_world_base = R_z(yaw) R_y(pitch) R_x(roll): roll > 0 lowers the right side, pitch > 0 lowers the
+  nose. The base's pitch is a rotation of the camera about its own x axis, its roll one about the
+  optical axis; pitch > 0 moves the horizon up in the image, roll > 0 tilts it down to the left.
+  Bearings are counter-clockwise from the camera's forward axis (left positive), as a laser scan
+  expects: the bearing of column u is atan2(-(u - c_x), f_x), so it decreases with u.
+  A pixel whose depth is 0, NaN or inf, or whose range is outside [range_min, range_max], is
+  invalid; a ray with no valid pixel reads +inf.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+
+class CameraIntrinsics(eqx.Module):
+    """Pinhole intrinsics in pixels (traced leaves: sweeps never recompile)."""
+
+    fx: Float[Array, ""]
+    fy: Float[Array, ""]
+    cx: Float[Array, ""]
+    cy: Float[Array, ""]
+
+
+class Scan(eqx.Module):
+    """A planar laser scan: one range (m) per ray and its bearing (rad, counter-clockwise from
+    forward). Invalid rays read +inf; `range_min`/`range_max` are the limits used to validate."""
+
+    ranges: Float[Array, "N"]
+    bearings: Float[Array, "N"]
+    range_min: Float[Array, ""]
+    range_max: Float[Array, ""]
+
+
+Intrinsics = CameraIntrinsics | Sequence[float]
+
+
+def _unpack(intrinsics: Intrinsics) -> tuple[Array, Array, Array, Array]:
+    if isinstance(intrinsics, CameraIntrinsics):
+        return intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+    fx, fy, cx, cy = intrinsics
+    return tuple(jnp.asarray(c, dtype=jnp.float32) for c in (fx, fy, cx, cy))
+
+
+def _check_image(depth: Array, band_height: int) -> None:
+    if depth.ndim != 2:
+        raise ValueError(f"depth must be an H x W image, got shape {depth.shape}")
+    if not 1 <= band_height <= depth.shape[0]:
+        raise ValueError(f"band_height must be in 1..{depth.shape[0]} (image height), got {band_height}")
+
+
+def _band_depth(depth: Array, rows: Array) -> tuple[Array, Array]:
+    """Depth of pixels (rows[k, u], u) for every column u, and whether each is a reading. Rows off the
+    image and non-readings come back as depth 1 (safe-where: no NaN/inf reaches later arithmetic
+    or its gradient)."""
+    height, width = depth.shape
+    inside = (rows >= 0) & (rows <= height - 1)
+    z = depth[jnp.clip(rows, 0, height - 1).astype(jnp.int32), jnp.arange(width)[None, :]]
+    good = inside & jnp.isfinite(z) & (z > 0)
+    return jnp.where(good, z, 1.0), good
+
+
+def stabilized_scan(
+    depth: Float[Array, "H W"],
+    intrinsics: Intrinsics,
+    roll: Float[Array, ""],
+    pitch: Float[Array, ""],
+    band_height: int,
+    range_min: float | Float[Array, ""] = 0.2,
+    range_max: float | Float[Array, ""] = 8.0,
+) -> Scan:
+    """IMU-stabilized scan, one ray per image column (the slicing definition of facts.md Sec. 3).
+
+    Base rows o = floor(c_y - h/2) + k, k = 0..h-1; column u samples rows
+    v = round(o + (u - c_x) tan(-roll) - f_y tan(pitch)) (rows outside the image are skipped) and keeps
+    the minimum valid camera-frame range sqrt(x^2 + z^2), x = (u - c_x) z / f_x. `band_height` is
+    static; everything else may be traced. Rounding is half-to-even.
+    """
+    _check_image(depth, band_height)
+    fx, fy, cx, cy = _unpack(intrinsics)
+    u = jnp.arange(depth.shape[1], dtype=jnp.float32)
+    base_rows = jnp.floor(cy - band_height / 2) + jnp.arange(band_height, dtype=jnp.float32)
+    shift = (u - cx) * jnp.tan(-roll) - fy * jnp.tan(pitch)
+    rows = jnp.round(base_rows[:, None] + shift[None, :])
+    z, good = _band_depth(depth, rows)
+    x = (u - cx) * z / fx
+    r = jnp.sqrt(x * x + z * z)
+    valid = good & (r >= range_min) & (r <= range_max)
+    return Scan(
+        ranges=jnp.min(jnp.where(valid, r, jnp.inf), axis=0),
+        bearings=jnp.arctan2(-(u - cx), fx),
+        range_min=jnp.asarray(range_min, jnp.float32),
+        range_max=jnp.asarray(range_max, jnp.float32),
+    )
+
+
+def baseline_scan(
+    depth: Float[Array, "H W"],
+    intrinsics: Intrinsics,
+    band_height: int,
+    range_min: float | Float[Array, ""] = 0.2,
+    range_max: float | Float[Array, ""] = 8.0,
+) -> Scan:
+    """Unstabilized scan (ROS depthimage_to_laserscan): the same band fixed on row c_y."""
+    zero = jnp.zeros((), jnp.float32)
+    return stabilized_scan(depth, intrinsics, zero, zero, band_height, range_min, range_max)
+
+
+def _R_level_base(roll, pitch):
+    """R_y(pitch) R_x(roll): base frame -> gravity-levelled frame sharing the base's heading."""
+    cr, sr, cp, sp = jnp.cos(roll), jnp.sin(roll), jnp.cos(pitch), jnp.sin(pitch)
+    one, zero = jnp.ones_like(cr), jnp.zeros_like(cr)
+    R_x = jnp.array([[one, zero, zero], [zero, cr, -sr], [zero, sr, cr]])
+    R_y = jnp.array([[cp, zero, sp], [zero, one, zero], [-sp, zero, cp]])
+    return R_y @ R_x
+
+
+def level_scan(
+    depth: Float[Array, "H W"],
+    intrinsics: Intrinsics,
+    roll: Float[Array, ""],
+    pitch: Float[Array, ""],
+    band_height: int,
+    range_min: float | Float[Array, ""] = 0.2,
+    range_max: float | Float[Array, ""] = 8.0,
+    n_bins: int = 320,
+    height_window: float | Float[Array, ""] = 0.05,
+    angle_min: float | Float[Array, ""] | None = None,
+    angle_max: float | Float[Array, ""] | None = None,
+) -> Scan:
+    """Gravity-levelled scan: the horizontal plane through the camera, binned by bearing.
+
+    Each column samples `band_height` rows centred on the exact image of that plane (the horizon
+    line v = c_y - f_y (tan(pitch)/cos(roll) + tan(roll)(u - c_x)/f_x), which the band of
+    `stabilized_scan` approximates), back-projects them, rotates them with the full roll and pitch
+    into the levelled frame (x forward, y left, z up, the base's heading), keeps points within
+    `height_window` (m) of the plane and, per bearing bin, the minimum horizontal range. Bins span
+    [angle_min, angle_max] (default: the bearings of the first and last columns, i.e. the
+    horizontal field of view) in `n_bins` equal steps, increasing; bearings are bin centres.
+    `band_height` and `n_bins` are static. Ranges are horizontal distances from the camera centre.
+    """
+    _check_image(depth, band_height)
+    if n_bins < 1:
+        raise ValueError(f"n_bins must be >= 1, got {n_bins}")
+    fx, fy, cx, cy = _unpack(intrinsics)
+    width = depth.shape[1]
+    u = jnp.arange(width, dtype=jnp.float32)
+    horizon = cy - fy * (jnp.tan(pitch) / jnp.cos(roll) + jnp.tan(roll) * (u - cx) / fx)
+    offsets = jnp.arange(band_height, dtype=jnp.float32) - (band_height - 1) // 2
+    rows = jnp.round(horizon)[None, :] + offsets[:, None]  # (h, W)
+
+    z, good = _band_depth(depth, rows)
+    p_cam = jnp.stack([(u - cx)[None, :] * z / fx, (rows - cy) * z / fy, z], axis=-1)
+    p_base = jnp.stack([p_cam[..., 2], -p_cam[..., 0], -p_cam[..., 1]], axis=-1)
+    p_level = p_base @ _R_level_base(roll, pitch).T
+    r = jnp.hypot(p_level[..., 0], p_level[..., 1])
+    bearing = jnp.arctan2(p_level[..., 1], p_level[..., 0])
+
+    lo = jnp.arctan2(-(width - 1 - cx), fx) if angle_min is None else jnp.asarray(angle_min, jnp.float32)
+    hi = jnp.arctan2(cx, fx) if angle_max is None else jnp.asarray(angle_max, jnp.float32)
+    step = (hi - lo) / n_bins
+    index = jnp.floor((bearing - lo) / step)
+    valid = (
+        good
+        & (jnp.abs(p_level[..., 2]) <= height_window)
+        & (r >= range_min)
+        & (r <= range_max)
+        & (index >= 0)
+        & (index < n_bins)
+    )
+    # Invalid points go to an extra bin that is dropped.
+    segment = jnp.where(valid, index, n_bins).astype(jnp.int32).ravel()
+    ranges = jax.ops.segment_min(jnp.where(valid, r, jnp.inf).ravel(), segment, num_segments=n_bins + 1)
+    return Scan(
+        ranges=ranges[:n_bins],
+        bearings=lo + (jnp.arange(n_bins, dtype=jnp.float32) + 0.5) * step,
+        range_min=jnp.asarray(range_min, jnp.float32),
+        range_max=jnp.asarray(range_max, jnp.float32),
+    )
