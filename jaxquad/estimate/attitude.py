@@ -1,0 +1,109 @@
+"""Attitude from gyro and accelerometer alone: a Mahony complementary filter on SO(3).
+
+The gyro is integrated on the unit quaternion; the accelerometer, read as the direction of
+"up" in the base frame while the robot is not accelerating much, corrects roll and pitch and,
+through an integral term, the gyro bias (Mahony, Hamel, Pflimlin, IEEE TAC 2008, eq. 32):
+
+    omega = gyro - b + kp e,    b_dot = -ki e,    e = a_n x (R^T e_z)
+
+with a_n the normalized accelerometer reading and R = R_world_base. Yaw is unobservable from
+these sensors and starts at 0. A reading whose norm is off g by more than `acc_gate` (relative)
+or that is not finite does not correct; a gyro reading that is not finite holds the attitude.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from jaxquad.estimate._rot import quat_exp, quat_from_roll_pitch_yaw, quat_multiply, quat_to_matrix
+
+GRAVITY = 9.81  # m/s^2
+
+
+class AttitudeParams(eqx.Module):
+    """Filter gains, traced so a sweep never recompiles."""
+
+    kp: Float[Array, ""]  # 1/s: proportional gain on the gravity-direction error
+    ki: Float[Array, ""]  # 1/s^2: integral gain, estimates the gyro bias
+    acc_gate: Float[Array, ""]  # relative deviation of |acc| from g beyond which no correction
+
+    @classmethod
+    def default(cls) -> "AttitudeParams":
+        return cls(kp=jnp.asarray(1.0), ki=jnp.asarray(0.1), acc_gate=jnp.asarray(0.3))
+
+
+class AttitudeState(eqx.Module):
+    q_world_base: Float[Array, "4"]  # w x y z
+    gyro_bias: Float[Array, "3"]  # rad/s, in the base frame
+
+
+def attitude_from_acc(acc: Float[Array, "3"]) -> Float[Array, "4"]:
+    """Roll and pitch that make R^T e_z parallel to the accelerometer reading; yaw 0.
+
+    Identity when the reading is not finite or zero.
+    """
+    ok = jnp.all(jnp.isfinite(acc)) & (acc @ acc > 0)
+    u = jnp.where(ok, acc, jnp.array([0.0, 0.0, 1.0], acc.dtype))
+    roll = jnp.arctan2(u[1], u[2])
+    pitch = jnp.arctan2(-u[0], jnp.sqrt(u[1] ** 2 + u[2] ** 2))
+    return quat_from_roll_pitch_yaw(roll, pitch, jnp.zeros_like(roll))
+
+
+def init(q_world_base: Float[Array, "4"]) -> AttitudeState:
+    return AttitudeState(
+        q_world_base=q_world_base, gyro_bias=jnp.zeros(3, dtype=q_world_base.dtype)
+    )
+
+
+def step(
+    params: AttitudeParams,
+    state: AttitudeState,
+    gyro: Float[Array, "3"],
+    acc: Float[Array, "3"],
+    dt: Float[Array, ""],
+) -> tuple[AttitudeState, Bool[Array, "2"]]:
+    """Advance by dt seconds. Returns the new state and flags (gyro used, accelerometer used)."""
+    gyro_ok = jnp.all(jnp.isfinite(gyro)) & jnp.isfinite(dt) & (dt > 0)
+    acc_sq = jnp.where(jnp.all(jnp.isfinite(acc)), acc @ acc, 0.0)
+    acc_norm = jnp.sqrt(jnp.where(acc_sq > 0, acc_sq, 1.0))
+    acc_ok = (acc_sq > 0) & (jnp.abs(acc_norm - GRAVITY) < params.acc_gate * GRAVITY) & gyro_ok
+    a_n = jnp.where(acc_ok, acc, 0.0) / acc_norm
+
+    up_base = quat_to_matrix(state.q_world_base)[2]  # R^T e_z
+    err = jnp.where(acc_ok, jnp.cross(a_n, up_base), 0.0)
+    dt_used = jnp.where(gyro_ok, dt, 0.0)
+    omega = jnp.where(gyro_ok, gyro, 0.0) - state.gyro_bias + params.kp * err
+    q = quat_multiply(state.q_world_base, quat_exp(omega * dt_used))
+    q = q / jnp.linalg.norm(q)
+    bias = state.gyro_bias - params.ki * err * dt_used
+    return AttitudeState(q_world_base=q, gyro_bias=bias), jnp.stack([gyro_ok, acc_ok])
+
+
+def estimate_attitude(
+    params: AttitudeParams,
+    t: Float[Array, "T"],
+    gyro: Float[Array, "T 3"],
+    acc: Float[Array, "T 3"],
+    q0_world_base: Float[Array, "4"] | None = None,
+) -> tuple[Float[Array, "T 4"], Bool[Array, "T 2"]]:
+    """Run the filter over a sequence (one robot). Sample k integrates gyro[k-1] over t[k]-t[k-1]
+    and corrects with acc[k-1], the reading taken with the attitude of sample k-1.
+
+    Starts from `q0_world_base`, or from roll and pitch of the first accelerometer reading.
+    Returns q_world_base per sample and the (gyro used, accelerometer used) flags.
+    """
+    q0 = attitude_from_acc(acc[0]) if q0_world_base is None else q0_world_base
+    dt = jnp.diff(t)
+
+    def body(state, x):
+        g, a, h = x
+        state, flags = step(params, state, g, a, h)
+        return state, (state.q_world_base, flags)
+
+    _, (qs, flags) = jax.lax.scan(body, init(q0), (gyro[:-1], acc[:-1], dt))
+    # Flags of step k describe the readings of sample k-1; the last sample's readings are unused.
+    last = jnp.zeros((1, 2), dtype=bool)
+    return jnp.concatenate([q0[None], qs]), jnp.concatenate([flags, last])
