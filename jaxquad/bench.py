@@ -41,32 +41,48 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                 section.add_arguments(parser.add_argument_group(f"{name} section"))
 
 
+def _cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo") as f:
+            return next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        import platform
+
+        return platform.processor() or "unknown"
+
+
 def _environment() -> dict:
     import jax
 
     device = jax.devices()[0]
+    name = getattr(device, "device_kind", str(device))
+    if device.platform == "cpu":
+        name = f"cpu ({_cpu_model()}, {os.cpu_count()} cores)"
     return {
-        "device": getattr(device, "device_kind", str(device)),
+        "device": name,
         "backend": jax.default_backend(),
         "n_devices": jax.device_count(),
         "jax_version": jax.__version__,
     }
 
 
-def time_jitted(fn, *args, repeats: int = 20) -> tuple[float, float]:
-    """(compile_s, run_ms) of `fn(*args)` for a jitted `fn`: the first call (trace + compile + run) apart
-    from the median of `repeats` steady calls, each waited on with `block_until_ready`."""
+def time_jitted(fn, *args, repeats: int = 20, budget_s: float = 3.0) -> tuple[float, float]:
+    """(compile_s, run_ms) of a jitted `fn` on `args`: ahead-of-time lowering + compilation timed
+    apart from the median of up to `repeats` steady calls (at least 3; fewer than `repeats` once
+    `budget_s` is spent), each waited on with `block_until_ready` after one warm-up call."""
     import time
 
     import jax
 
     t0 = time.perf_counter()
-    jax.block_until_ready(fn(*args))
+    compiled = fn.lower(*args).compile()
     compile_s = time.perf_counter() - t0
+    jax.block_until_ready(compiled(*args))
     runs = []
-    for _ in range(repeats):
+    start = time.perf_counter()
+    while len(runs) < repeats and (len(runs) < 3 or time.perf_counter() - start < budget_s):
         t0 = time.perf_counter()
-        jax.block_until_ready(fn(*args))
+        jax.block_until_ready(compiled(*args))
         runs.append(time.perf_counter() - t0)
     runs.sort()
     return compile_s, 1e3 * runs[len(runs) // 2]
