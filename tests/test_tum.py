@@ -30,7 +30,7 @@ def test_round_trip_is_exact_and_evo_reads_it(tmp_path):
     theirs = file_interface.read_tum_trajectory_file(str(path))
     np.testing.assert_array_equal(theirs.timestamps, tr.t_s)
     np.testing.assert_array_equal(theirs.positions_xyz, tr.p_world_body)
-    np.testing.assert_array_equal(theirs.orientations_quat_wxyz, np.roll(back.q_world_body_xyzw, 1, axis=1))
+    np.testing.assert_array_equal(theirs.orientations_quat_wxyz, np.roll(tr.q_world_body_xyzw, 1, axis=1))
 
 
 def test_comments_blank_lines_and_normalization(tmp_path):
