@@ -1,0 +1,404 @@
+"""The estimation pipeline over robot logs: contacts, leg-inertial odometry, one `lax.scan` per robot.
+
+Per sample k (dt = t_k - t_{k-1}):
+  1. joint velocities: the log's qd, or the causal differentiating filter on q;
+  2. attitude: the log's quat_wxyz, or the Mahony filter on gyro and accelerometer;
+  3. contacts: ground truth, the robot's sensor flags, or the momentum observer (plain or mixed);
+  4. foot positions and velocities in the base frame from the MJX model (forward kinematics and
+     its tangent map, so v_base_foot = J(q) qd exactly);
+  5. the twist least squares (kernels.body_twist) on the stance feet and the gyro;
+  6. the pose: the twist of sample k-1 integrated over dt on SE(3), orientation from step 2.
+
+Bad data never reaches the trajectory as NaN; each case is flagged per sample (`Flags`):
+non-finite joint readings hold the joint's last value; non-finite gyro/acc hold the attitude;
+saturated torques or non-finite torques skip the observer step (contacts held); a step with fewer
+than `min_stance` feet or an invalid solve reuses the last good twist; a time gap longer than
+`max_gap_s` is not integrated (pose held) and restarts the observer; a robot whose base tilts past
+`fall_tilt_rad`, or whose input `valid` goes False, is marked fallen from then on and its pose held.
+
+`estimate_robot` is the single-robot function (params a traced pytree, so it vmaps over parameter
+sets and differentiates w.r.t. observer numbers through soft contacts); `estimate_fleet` is it
+jitted and vmapped over robots, compiled once per robot model and configuration.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from jaxquad.estimate import attitude as att
+from jaxquad.estimate import differentiate as dif
+from jaxquad.estimate._rot import quat_multiply, quat_to_matrix
+from jaxquad.estimate.odometry import Pose, odometry_step
+from jaxquad.kernels import ContactObserver, ObserverParams, body_twist
+
+CONTACT_SOURCES = ("truth", "sensor", "observer", "mixed")
+
+
+class PipelineParams(eqx.Module):
+    """Every tunable number of the pipeline (traced leaves)."""
+
+    observer: ObserverParams
+    attitude: att.AttitudeParams
+    differentiator: dif.DifferentiatorParams
+    imu_weight: Float[Array, ""]  # weight of the gyro rows in the twist least squares
+    min_stance: Float[Array, ""]  # effective stance count needed for the linear velocity
+    max_gap_s: Float[Array, ""]  # longer time steps are not integrated
+    fall_tilt_rad: Float[Array, ""]  # base tilt beyond which the robot counts as fallen
+    torque_saturation: Float[Array, ""]  # fraction of the torque limit that counts as saturated
+
+    @classmethod
+    def default(cls, n_feet: int = 4, mode: Literal["plain", "mixed"] = "mixed") -> "PipelineParams":
+        """The paper's observer defaults (facts.md Sec. 3) and this library's filter settings."""
+        return cls(
+            observer=ObserverParams.paper(n_feet, mode),
+            attitude=att.AttitudeParams.default(),
+            differentiator=dif.DifferentiatorParams.default(),
+            imu_weight=jnp.asarray(1.0),
+            min_stance=jnp.asarray(1.5),
+            max_gap_s=jnp.asarray(0.05),
+            fall_tilt_rad=jnp.asarray(1.2),
+            torque_saturation=jnp.asarray(0.99),
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class PipelineConfig:
+    """Static choices: they select code, so each combination compiles once."""
+
+    contacts: str = "truth"  # one of CONTACT_SOURCES
+    has_qd: bool = True  # use RobotInputs.qd, else differentiate q
+    has_attitude: bool = True  # use RobotInputs.quat_wxyz, else run the attitude filter
+    soft_contacts: bool = False  # observer: weight feet by contact_soft instead of 0/1
+
+    def __post_init__(self):
+        if self.contacts not in CONTACT_SOURCES:
+            raise ValueError(f"contacts must be one of {CONTACT_SOURCES}, got {self.contacts!r}")
+
+
+class RobotInputs(eqx.Module):
+    """One robot's log, in the robot model's joint and foot order (a fleet adds a leading axis)."""
+
+    dt: Float[Array, "T"]  # s since the previous sample (0 at sample 0), from float64 stamps
+    q: Float[Array, "T nu"]  # rad
+    qd: Float[Array, "T nu"]  # rad/s (ignored unless config.has_qd)
+    tau: Float[Array, "T nu"]  # N m (observer only)
+    gyro: Float[Array, "T 3"]  # rad/s, IMU frame
+    acc: Float[Array, "T 3"]  # m/s^2, IMU frame
+    quat_wxyz: Float[Array, "T 4"]  # world-from-base (ignored unless config.has_attitude)
+    contact_weight: Float[Array, "T F"]  # in [0, 1] (truth/sensor contacts)
+    valid: Bool[Array, "T"]  # False where the log marks the robot invalid
+    p0_world_base: Float[Array, "3"]  # initial position, m
+    yaw0: Float[Array, ""]  # initial heading (rad) when the attitude comes from the filter
+
+
+class Flags(eqx.Module):
+    """Per-sample flags (T,) of what was detected and handled."""
+
+    bad_joints: Bool[Array, "T"]  # some q (or qd) not finite: last value held
+    bad_imu: Bool[Array, "T"]  # gyro or attitude not finite: attitude held
+    bad_torque: Bool[Array, "T"]  # torque not finite or saturated: observer step skipped
+    gap: Bool[Array, "T"]  # dt > max_gap_s (or dt <= 0): not integrated
+    no_stance: Bool[Array, "T"]  # twist not observed: last good twist held
+    fallen: Bool[Array, "T"]  # tilted past fall_tilt_rad or marked invalid: pose held from here on
+
+
+class Estimate(eqx.Module):
+    """Per-sample outputs of one robot (leading time axis T)."""
+
+    p_world_base: Float[Array, "T 3"]
+    q_world_base: Float[Array, "T 4"]  # w x y z
+    v_base: Float[Array, "T 3"]  # m/s, base frame
+    omega_base: Float[Array, "T 3"]  # rad/s, base frame
+    contact: Bool[Array, "T F"]
+    contact_soft: Float[Array, "T F"]  # observer's soft contact; the input weight otherwise
+    force_z: Float[Array, "T F"]  # observer force (N), 0 for truth/sensor contacts
+    force_z_filtered: Float[Array, "T F"]
+    qd: Float[Array, "T nu"]  # joint velocities used
+    flags: Flags
+
+
+class _Carry(eqx.Module):
+    diff: dif.DifferentiatorState
+    att: att.AttitudeState
+    obs: object  # ObserverState, or None without the observer
+    pose: Pose
+    q_last: Float[Array, "nu"]
+    qd_last: Float[Array, "nu"]
+    gyro_last: Float[Array, "3"]
+    weight_last: Float[Array, "F"]
+    v_last: Float[Array, "3"]
+    omega_last: Float[Array, "3"]
+    fallen: Bool[Array, ""]
+
+
+def _foot_kinematics(robot, q: Float[Array, "nu"], qd: Float[Array, "nu"]):
+    """p_base_foot (F, 3) and v_base_foot = J(q) qd (F, 3) with the base at the origin."""
+    from mujoco import mjx
+
+    m = robot.mjx_model
+    base = jnp.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+    qpos0 = jnp.asarray(robot.qpos_home).at[robot.base_qpos_adr : robot.base_qpos_adr + 7].set(base)
+    d0 = mjx.make_data(m)
+    sites = jnp.asarray(robot.foot_site_ids)
+    adr = jnp.asarray(robot.qpos_adr)
+
+    def feet(qj):
+        d = mjx.kinematics(m, d0.replace(qpos=qpos0.at[adr].set(qj)))
+        return d.site_xpos[sites]
+
+    return jax.jvp(feet, (q,), (qd,))
+
+
+def _R_base_imu(robot) -> np.ndarray:
+    """Rotation of the IMU site in the base frame, at the home configuration (MuJoCo C)."""
+    import mujoco
+
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[:] = robot.qpos_home
+    mujoco.mj_kinematics(m, d)
+    R_world_base = d.xmat[robot.base_body_id].reshape(3, 3)
+    R_world_imu = d.site_xmat[robot.imu_site_id].reshape(3, 3)
+    return R_world_base.T @ R_world_imu
+
+
+def _hold(ok, new, old):
+    return jax.tree.map(lambda a, b: jnp.where(ok, a, b), new, old)
+
+
+def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs: RobotInputs) -> Estimate:
+    """Run the pipeline over one robot's inputs (pure; jit and vmap at the call site)."""
+    observer = config.contacts in ("observer", "mixed")
+    n_feet = len(robot.foot_names)
+    R_base_imu = jnp.asarray(_R_base_imu(robot), dtype=inputs.gyro.dtype)
+    torque_limit = jnp.asarray(np.where(np.isfinite(robot.torque_limit), robot.torque_limit, np.inf), inputs.tau.dtype)
+
+    q0 = jnp.where(jnp.isfinite(inputs.q[0]), inputs.q[0], jnp.asarray(robot.q_home, inputs.q.dtype))
+    if config.has_attitude:
+        qa0 = inputs.quat_wxyz[0]
+        quat0 = jnp.where(jnp.all(jnp.isfinite(qa0)), qa0, jnp.array([1.0, 0.0, 0.0, 0.0]))
+    else:
+        quat0 = att.attitude_from_acc(R_base_imu @ inputs.acc[0])
+        half = 0.5 * inputs.yaw0
+        quat0 = quat_multiply(jnp.stack([jnp.cos(half), 0.0 * half, 0.0 * half, jnp.sin(half)]), quat0)
+    quat0 = quat0 / jnp.linalg.norm(quat0)
+    pose0 = Pose(p_world_base=inputs.p0_world_base, q_world_base=quat0)
+
+    if observer:
+        from jaxquad.dynamics import momentum_terms  # noqa: PLC0415 (needs the observer only)
+
+        obs0 = ContactObserver().init(params.observer, jnp.zeros(robot.nv, inputs.q.dtype), n_feet)
+    else:
+        obs0 = None
+    zeros3 = jnp.zeros(3, inputs.gyro.dtype)
+    carry0 = _Carry(
+        diff=dif.init(q0),
+        att=att.init(quat0),
+        obs=obs0,
+        pose=pose0,
+        q_last=q0,
+        qd_last=jnp.zeros_like(q0),
+        gyro_last=zeros3,
+        weight_last=jnp.zeros(n_feet, inputs.gyro.dtype),
+        v_last=zeros3,
+        omega_last=zeros3,
+        fallen=jnp.asarray(False),
+    )
+
+    def step(c: _Carry, x):
+        dt, q, qd_in, tau, gyro_imu, acc_imu, quat_in, w_in, valid_in = x
+        first = dt == 0  # sample 0: nothing to integrate
+        gap = ~first & ~((dt > 0) & (dt <= params.max_gap_s))
+        dt_int = jnp.where(first | gap, 0.0, dt)
+
+        # 1. joints: hold non-finite readings.
+        q_ok = jnp.isfinite(q)
+        q_use = jnp.where(q_ok, q, c.q_last)
+        if config.has_qd:
+            qd_ok = jnp.isfinite(qd_in)
+            qd_use = jnp.where(qd_ok, qd_in, c.qd_last)
+            diff_state = c.diff
+            bad_joints = ~jnp.all(q_ok & qd_ok)
+        else:
+            diff_state, _ = dif.step(params.differentiator, c.diff, q, jnp.where(gap, 0.0, dt))
+            qd_use = diff_state.qd
+            bad_joints = ~jnp.all(q_ok)
+
+        # 2. attitude.
+        gyro_ok = jnp.all(jnp.isfinite(gyro_imu))
+        gyro = jnp.where(gyro_ok, R_base_imu @ jnp.where(gyro_ok, gyro_imu, 0.0), c.gyro_last)
+        acc = R_base_imu @ acc_imu
+        if config.has_attitude:
+            qa_ok = jnp.all(jnp.isfinite(quat_in)) & (jnp.abs(jnp.sum(quat_in**2) - 1.0) < 0.1)
+            quat = jnp.where(qa_ok, quat_in, c.pose.q_world_base)
+            att_state = c.att
+            bad_imu = ~(qa_ok & gyro_ok)
+        else:
+            att_state, used = att.step(params.attitude, c.att, gyro, acc, dt_int)
+            quat = att_state.q_world_base
+            bad_imu = ~(used[0] | first) | ~jnp.all(jnp.isfinite(acc_imu))
+        quat = quat / jnp.linalg.norm(quat)
+        R_world_base = quat_to_matrix(quat)
+        fallen = c.fallen | ~valid_in | (R_world_base[2, 2] < jnp.cos(params.fall_tilt_rad))
+
+        # 3. contacts.
+        tau_ok = jnp.all(jnp.isfinite(tau)) & jnp.all(jnp.abs(tau) < params.torque_saturation * torque_limit)
+        if observer:
+            qpos = jnp.asarray(robot.qpos_home, q.dtype)
+            qpos = qpos.at[robot.base_qpos_adr : robot.base_qpos_adr + 3].set(c.pose.p_world_base)
+            qpos = qpos.at[robot.base_qpos_adr + 3 : robot.base_qpos_adr + 7].set(quat)
+            qpos = qpos.at[jnp.asarray(robot.qpos_adr)].set(q_use)
+            qvel = jnp.zeros(robot.nv, q.dtype)
+            qvel = qvel.at[robot.base_dof_adr : robot.base_dof_adr + 3].set(R_world_base @ c.v_last)
+            qvel = qvel.at[robot.base_dof_adr + 3 : robot.base_dof_adr + 6].set(gyro)
+            qvel = qvel.at[jnp.asarray(robot.dof_adr)].set(qd_use)
+            p_mom, tau_bar, J_z = momentum_terms(robot.mjx_model, qpos, qvel, jnp.where(tau_ok, tau, 0.0))
+            obs_prev = jax.tree.map(lambda a: a, c.obs)
+            # After a gap the momentum residual is meaningless: restart the estimate at p.
+            obs_prev = eqx.tree_at(lambda s: s.p_hat, obs_prev, jnp.where(gap | first, p_mom, obs_prev.p_hat))
+            obs_dt = jnp.where(tau_ok & ~gap & ~first, dt, jnp.nan)  # NaN dt: the step is rejected (held)
+            obs_state, est = ContactObserver().step(params.observer, obs_prev, p_mom, tau_bar, J_z, obs_dt)
+            contact, contact_soft = est.contact, est.contact_soft
+            force_z, force_f = est.force_z, est.force_z_filtered
+            weight = contact_soft if config.soft_contacts else contact.astype(contact_soft.dtype)
+        else:
+            obs_state = None
+            w_ok = jnp.isfinite(w_in)
+            weight = jnp.where(w_ok, jnp.clip(w_in, 0.0, 1.0), c.weight_last)
+            contact, contact_soft = weight > 0.5, weight
+            force_z = force_f = jnp.zeros_like(weight)
+
+        # 4-5. kinematics and twist.
+        p_foot, v_foot = _foot_kinematics(robot, q_use, qd_use)
+        tw = body_twist(p_foot, v_foot, gyro, weight, params.imu_weight, params.min_stance)
+        tw_ok = tw.valid & tw.linear_observed
+        v_base = jnp.where(tw_ok, tw.v_base, c.v_last)
+        omega = jnp.where(tw_ok, tw.omega_base, gyro)
+
+        # 6. pose: the previous sample's twist over dt; held once fallen.
+        moved = odometry_step(c.pose, c.v_last, c.omega_last, dt_int, quat)
+        pose = _hold(~fallen, moved, c.pose)
+
+        new = _Carry(
+            diff=diff_state,
+            att=att_state,
+            obs=obs_state,
+            pose=pose,
+            q_last=q_use,
+            qd_last=qd_use,
+            gyro_last=gyro,
+            weight_last=weight,
+            v_last=jnp.where(fallen, 0.0, v_base),
+            omega_last=jnp.where(fallen, 0.0, omega),
+            fallen=fallen,
+        )
+        flags = Flags(
+            bad_joints=bad_joints,
+            bad_imu=bad_imu,
+            bad_torque=~tau_ok if observer else jnp.asarray(False),
+            gap=gap,
+            no_stance=~tw_ok,
+            fallen=fallen,
+        )
+        out = Estimate(
+            p_world_base=pose.p_world_base,
+            q_world_base=pose.q_world_base,
+            v_base=v_base,
+            omega_base=omega,
+            contact=contact,
+            contact_soft=contact_soft,
+            force_z=force_z,
+            force_z_filtered=force_f,
+            qd=qd_use,
+            flags=flags,
+        )
+        return new, out
+
+    xs = (
+        inputs.dt, inputs.q, inputs.qd, inputs.tau, inputs.gyro, inputs.acc,
+        inputs.quat_wxyz, inputs.contact_weight, inputs.valid,
+    )  # fmt: skip
+    _, out = jax.lax.scan(step, carry0, xs)
+    return out
+
+
+@functools.lru_cache(maxsize=8)
+def _compiled(robot, config: PipelineConfig, batched_params: bool):
+    fn = functools.partial(estimate_robot, robot, config)
+    return jax.jit(jax.vmap(fn, in_axes=(0 if batched_params else None, 0)))
+
+
+def estimate_fleet(robot, config: PipelineConfig, params: PipelineParams, inputs: RobotInputs, batched_params: bool = False) -> Estimate:
+    """`estimate_robot` over N robots (inputs with a leading axis N), jitted once per robot model
+    and configuration; `batched_params` vmaps the parameters too (one set per robot)."""
+    return _compiled(robot, config, batched_params)(params, inputs)
+
+
+def inputs_from_log(robot, log, contacts: str = "truth") -> tuple[RobotInputs, PipelineConfig]:
+    """RobotInputs with a leading robot axis (a single log becomes a fleet of one) and the static
+    configuration the log allows. Joints are reordered to the model's order by name.
+
+    contacts: "truth" (gt_contact), "sensor" (the log's contact flags, else foot_force above the
+    midpoint of its per-foot 5th and 95th percentiles), "observer" (plain) or "mixed" (needs tau).
+    The initial position and heading come from gt_pose when the log has it, else the origin.
+    """
+    if contacts not in CONTACT_SOURCES:
+        raise ValueError(f"contacts must be one of {', '.join(CONTACT_SOURCES)}, got {contacts!r}")
+    fleet = "fallen" in log
+    lead = (lambda a: np.asarray(a)) if fleet else (lambda a: np.asarray(a)[None])
+    t = np.asarray(log["t"], np.float64)
+    names = [str(n) for n in np.asarray(log["joint_names"])]
+    missing = [j for j in robot.joint_names if j not in names]
+    if missing:
+        raise ValueError(f"log has no joint(s) {missing} of robot {robot.name!r}")
+    order = np.array([names.index(j) for j in robot.joint_names])
+    q = lead(log["q"])[..., order]
+    n, T = q.shape[0], t.shape[0]
+    nan = np.full(q.shape, np.nan)
+    qd = lead(log["qd"])[..., order] if "qd" in log else nan
+    if contacts in ("observer", "mixed") and "tau" not in log:
+        raise ValueError(f"contacts={contacts!r} needs joint torques ('tau') in the log")
+    tau = lead(log["tau"])[..., order] if "tau" in log else nan
+    if contacts == "truth":
+        if "gt_contact" not in log:
+            raise ValueError("contacts='truth' needs 'gt_contact' in the log")
+        weight = lead(log["gt_contact"]).astype(float)
+    elif contacts == "sensor":
+        if "contact" in log:
+            weight = lead(log["contact"]).astype(float)
+        elif "foot_force" in log:
+            f = lead(log["foot_force"]).astype(float)
+            lo, hi = np.nanpercentile(f, 5, axis=1), np.nanpercentile(f, 95, axis=1)
+            weight = np.where(np.isfinite(f), (f > 0.5 * (lo + hi)[:, None]).astype(float), np.nan)
+        else:
+            raise ValueError("contacts='sensor' needs 'contact' or 'foot_force' in the log")
+    else:
+        weight = np.zeros((n, T, len(robot.foot_names)))
+    quat = lead(log["quat_wxyz"]) if "quat_wxyz" in log else np.tile([1.0, 0, 0, 0], (n, T, 1))
+    valid = np.asarray(log["valid"], bool) if fleet else np.ones((1, T), bool)
+    if "gt_pose" in log:
+        gt = lead(log["gt_pose"])[:, 0]
+        p0 = gt[:, :3]
+        w, x, y, z = gt[:, 3:].T
+        yaw0 = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    else:
+        p0, yaw0 = np.zeros((n, 3)), np.zeros(n)
+    f32 = lambda a: jnp.asarray(a, jnp.float32)
+    inputs = RobotInputs(
+        dt=f32(np.broadcast_to(np.diff(t, prepend=t[0]), (n, T))),
+        q=f32(q), qd=f32(qd), tau=f32(tau), gyro=f32(lead(log["gyro"])), acc=f32(lead(log["acc"])),
+        quat_wxyz=f32(quat), contact_weight=f32(weight), valid=jnp.asarray(valid),
+        p0_world_base=f32(p0), yaw0=f32(yaw0),
+    )  # fmt: skip
+    config = PipelineConfig(
+        contacts=contacts, has_qd="qd" in log, has_attitude="quat_wxyz" in log, soft_contacts=False
+    )
+    return inputs, config
