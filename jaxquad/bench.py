@@ -90,7 +90,7 @@ def time_jitted(fn, *args, repeats: int = 20, budget_s: float = 3.0) -> tuple[fl
 
 def _format_value(v) -> str:
     if isinstance(v, float):
-        return f"{v:.4g}"
+        return f"{v:,.0f}" if abs(v) >= 1e4 else f"{v:.4g}"
     return str(v)
 
 
