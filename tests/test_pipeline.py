@@ -112,3 +112,51 @@ def test_fixed_feet_motion_is_recovered(robot, fixed_feet_log):
     assert np.abs(p_est - p_true).max() < 3e-3
     assert not np.asarray(out.flags.no_stance[0]).any()
     assert not np.asarray(out.flags.fallen[0]).any()
+
+
+def test_bad_data_is_flagged_and_never_reaches_the_trajectory(robot, fixed_feet_log):
+    """A fleet of two: robot 0 clean, robot 1 with NaN joints, NaN gyro, a fall and a time gap."""
+    clean = fixed_feet_log
+    t = clean["t"].copy()
+    t[300:] += 0.2  # a 200 ms gap between samples 299 and 300 (shared time axis)
+    fleet = {k: (np.stack([v, v]) if k not in ("t", "robot", "joint_names") else v) for k, v in clean.items()}
+    fleet["t"] = t
+    fleet["q"] = fleet["q"].copy()
+    fleet["q"][1, 50:55, 3] = np.nan
+    fleet["gyro"] = fleet["gyro"].copy()
+    fleet["gyro"][1, 80:82] = np.inf
+    fleet["quat_wxyz"] = fleet["quat_wxyz"].copy()
+    fleet["quat_wxyz"][1, 350:] = [np.cos(0.75), np.sin(0.75), 0, 0]  # rolled 1.5 rad: fallen
+    fleet["fallen"] = np.array([False, True])
+    fleet["valid"] = np.ones((2, t.size), bool)
+
+    inputs, config = pipeline.inputs_from_log(robot, fleet, "truth")
+    out = pipeline.estimate_fleet(robot, config, pipeline.PipelineParams.default(), inputs)
+    p = np.asarray(out.p_world_base)
+    assert np.isfinite(p).all() and np.isfinite(np.asarray(out.q_world_base)).all()
+    f = out.flags
+    bad_joints, bad_imu = np.asarray(f.bad_joints), np.asarray(f.bad_imu)
+    assert bad_joints[1, 50:55].all() and not bad_joints[1, 55:].any() and not bad_joints[0].any()
+    assert bad_imu[1, 80:82].all() and not bad_imu[0].any()
+    gap = np.asarray(f.gap)
+    assert gap[:, 300].all() and gap.sum() == 2
+    fallen = np.asarray(f.fallen)
+    assert fallen[1, 350:].all() and not fallen[1, :350].any() and not fallen[0].any()
+    np.testing.assert_array_equal(p[1, 350:], np.broadcast_to(p[1, 349], p[1, 350:].shape))  # held
+    # The gap is not integrated: the pose across it does not move.
+    np.testing.assert_allclose(p[0, 300], p[0, 299], atol=1e-6)
+    # Up to the gap the clean robot tracks the truth, and the bad robot's short dropouts cost little.
+    p_true = clean["gt_pose"][:, :3]
+    assert np.abs(p[0, :300] - p_true[:300]).max() < 3e-3
+    assert np.abs(p[1, :300] - p_true[:300]).max() < 5e-3
+
+
+def test_inputs_from_log_errors(robot, fixed_feet_log):
+    log = dict(fixed_feet_log)
+    with pytest.raises(ValueError, match="needs joint torques"):
+        pipeline.inputs_from_log(robot, log, "mixed")
+    with pytest.raises(ValueError, match="needs 'contact' or 'foot_force'"):
+        pipeline.inputs_from_log(robot, log, "sensor")
+    log["joint_names"] = np.array(["a"] * 12)
+    with pytest.raises(ValueError, match="has no joint"):
+        pipeline.inputs_from_log(robot, log, "truth")

@@ -4,8 +4,8 @@ Per sample k (dt = t_k - t_{k-1}):
   1. joint velocities: the log's qd, or the causal differentiating filter on q;
   2. attitude: the log's quat_wxyz, or the Mahony filter on gyro and accelerometer;
   3. contacts: ground truth, the robot's sensor flags, or the momentum observer (plain or mixed);
-  4. foot positions and velocities in the base frame from the MJX model (forward kinematics and
-     its tangent map, so v_base_foot = J(q) qd exactly);
+  4. foot positions and velocities in the base frame from the MJX model (jaxquad.dynamics:
+     forward kinematics and v_base_foot = J(q) qd);
   5. the twist least squares (kernels.body_twist) on the stance feet and the gyro;
   6. the pose: the twist of sample k-1 integrated over dt on SE(3), orientation from step 2.
 
@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
+from jaxquad import dynamics
 from jaxquad.estimate import attitude as att
 from jaxquad.estimate import differentiate as dif
 from jaxquad.estimate._rot import quat_multiply, quat_to_matrix
@@ -139,24 +140,6 @@ class _Carry(eqx.Module):
     fallen: Bool[Array, ""]
 
 
-def _foot_kinematics(robot, q: Float[Array, "nu"], qd: Float[Array, "nu"]):
-    """p_base_foot (F, 3) and v_base_foot = J(q) qd (F, 3) with the base at the origin."""
-    from mujoco import mjx
-
-    m = robot.mjx_model
-    base = jnp.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
-    qpos0 = jnp.asarray(robot.qpos_home).at[robot.base_qpos_adr : robot.base_qpos_adr + 7].set(base)
-    d0 = mjx.make_data(m)
-    sites = jnp.asarray(robot.foot_site_ids)
-    adr = jnp.asarray(robot.qpos_adr)
-
-    def feet(qj):
-        d = mjx.kinematics(m, d0.replace(qpos=qpos0.at[adr].set(qj)))
-        return d.site_xpos[sites]
-
-    return jax.jvp(feet, (q,), (qd,))
-
-
 def _R_base_imu(robot) -> np.ndarray:
     """Rotation of the IMU site in the base frame, at the home configuration (MuJoCo C)."""
     import mujoco
@@ -193,8 +176,6 @@ def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs
     pose0 = Pose(p_world_base=inputs.p0_world_base, q_world_base=quat0)
 
     if observer:
-        from jaxquad.dynamics import momentum_terms  # noqa: PLC0415 (needs the observer only)
-
         obs0 = ContactObserver().init(params.observer, jnp.zeros(robot.nv, inputs.q.dtype), n_feet)
     else:
         obs0 = None
@@ -251,16 +232,17 @@ def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs
 
         # 3. contacts.
         tau_ok = jnp.all(jnp.isfinite(tau)) & jnp.all(jnp.abs(tau) < params.torque_saturation * torque_limit)
+        # Full state for the model: base velocity from the last twist (world linear, body angular).
+        qpos = jnp.asarray(robot.qpos_home, q.dtype)
+        qpos = qpos.at[robot.base_qpos_adr : robot.base_qpos_adr + 3].set(c.pose.p_world_base)
+        qpos = qpos.at[robot.base_qpos_adr + 3 : robot.base_qpos_adr + 7].set(quat)
+        qpos = qpos.at[jnp.asarray(robot.qpos_adr)].set(q_use)
+        qvel = jnp.zeros(robot.nv, q.dtype)
+        qvel = qvel.at[robot.base_dof_adr : robot.base_dof_adr + 3].set(R_world_base @ c.v_last)
+        qvel = qvel.at[robot.base_dof_adr + 3 : robot.base_dof_adr + 6].set(gyro)
+        qvel = qvel.at[jnp.asarray(robot.dof_adr)].set(qd_use)
         if observer:
-            qpos = jnp.asarray(robot.qpos_home, q.dtype)
-            qpos = qpos.at[robot.base_qpos_adr : robot.base_qpos_adr + 3].set(c.pose.p_world_base)
-            qpos = qpos.at[robot.base_qpos_adr + 3 : robot.base_qpos_adr + 7].set(quat)
-            qpos = qpos.at[jnp.asarray(robot.qpos_adr)].set(q_use)
-            qvel = jnp.zeros(robot.nv, q.dtype)
-            qvel = qvel.at[robot.base_dof_adr : robot.base_dof_adr + 3].set(R_world_base @ c.v_last)
-            qvel = qvel.at[robot.base_dof_adr + 3 : robot.base_dof_adr + 6].set(gyro)
-            qvel = qvel.at[jnp.asarray(robot.dof_adr)].set(qd_use)
-            p_mom, tau_bar, J_z = momentum_terms(robot.mjx_model, qpos, qvel, jnp.where(tau_ok, tau, 0.0))
+            p_mom, tau_bar, J_z = dynamics.momentum_terms(robot, qpos, qvel, jnp.where(tau_ok, tau, 0.0))
             obs_prev = jax.tree.map(lambda a: a, c.obs)
             # After a gap the momentum residual is meaningless: restart the estimate at p.
             obs_prev = eqx.tree_at(lambda s: s.p_hat, obs_prev, jnp.where(gap | first, p_mom, obs_prev.p_hat))
@@ -277,7 +259,7 @@ def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs
             force_z = force_f = jnp.zeros_like(weight)
 
         # 4-5. kinematics and twist.
-        p_foot, v_foot = _foot_kinematics(robot, q_use, qd_use)
+        p_foot, v_foot = dynamics.p_base_foot(robot, qpos), dynamics.v_base_foot(robot, qpos, qvel)
         tw = body_twist(p_foot, v_foot, gyro, weight, params.imu_weight, params.min_stance)
         tw_ok = tw.valid & tw.linear_observed
         v_base = jnp.where(tw_ok, tw.v_base, c.v_last)
