@@ -49,7 +49,7 @@ def body_twist(
 
     p_base_foot: foot positions in the base frame (m). v_base_foot: foot velocities relative to the
     base from joint motion, J(q) qdot (m/s). omega_imu: gyro rate in the base frame (rad/s).
-    weights: per-foot stance weights in [0, 1] (0 = swing; a swing foot's data is never read, so it
+    weights: per-foot stance weights, clipped to [0, 1] (0 = swing; a swing foot's data is never read, so it
     may be NaN). imu_weight: weight of the gyro rows, floored at 1e-6. min_stance: effective stance
     count (sum of weights) from which the linear velocity counts as observed.
     """
