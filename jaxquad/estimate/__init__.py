@@ -1,1 +1,26 @@
 """Contact estimation and leg-inertial odometry over robot logs, scoring and tuning."""
+
+from jaxquad.estimate.attitude import AttitudeParams, AttitudeState, attitude_from_acc, estimate_attitude
+from jaxquad.estimate.differentiate import DifferentiatorParams, DifferentiatorState, differentiate
+from jaxquad.estimate.odometry import Pose, integrate_twist, odometry_step, se3_exp
+from jaxquad.estimate.pipeline import (
+    CONTACT_SOURCES,
+    Estimate,
+    Flags,
+    PipelineConfig,
+    PipelineParams,
+    RobotInputs,
+    estimate_fleet,
+    estimate_robot,
+    inputs_from_log,
+)
+from jaxquad.estimate.run import estimate_log, load_params, run_estimate
+from jaxquad.estimate.scores import contact_scores, detection_delays, force_rmse, odometry_drift
+
+__all__ = [
+    "CONTACT_SOURCES", "AttitudeParams", "AttitudeState", "DifferentiatorParams", "DifferentiatorState",
+    "Estimate", "Flags", "PipelineConfig", "PipelineParams", "Pose", "RobotInputs", "attitude_from_acc",
+    "contact_scores", "detection_delays", "differentiate", "estimate_attitude", "estimate_fleet",
+    "estimate_log", "estimate_robot", "force_rmse", "inputs_from_log", "integrate_twist", "load_params",
+    "odometry_drift", "odometry_step", "run_estimate", "se3_exp",
+]
