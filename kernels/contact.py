@@ -54,6 +54,8 @@ _MODES = ("plain", "mixed")
 _MIN_H = 1e-6
 # Stand-in dt while a step is rejected, so no NaN reaches the (discarded) arithmetic or gradients.
 _SAFE_DT = 1e-3
+# Newton iterations for the implicit mixed-mode step (quadratic convergence; see the tests).
+_NEWTON_ITERS = 6
 
 
 class ObserverParams(eqx.Module):
@@ -129,15 +131,18 @@ class ContactEstimate(eqx.Module):
     valid: Bool[Array, ""]
 
 
-def _implicit_residual(
-    s: Float[Array, "nv"], h: Float[Array, ""], mode: str
+def _residual_and_k2(
+    s: Float[Array, "nv"], h: Float[Array, ""], sharpness: Float[Array, ""], mode: str
 ) -> tuple[Float[Array, "nv"], Float[Array, "nv"]]:
-    """Solve r + h k1(r) = s elementwise; returns (r, sgn(r)|r|^(1/2)) (the second only in mixed)."""
+    """Solve r + h k1(r) = s elementwise in closed form; return (r, k2(r)), both smooth in s."""
     if mode == "plain":
-        return s / (1.0 + 2.0 * h), jnp.zeros_like(s)
-    # (1 + h) u^2 + h u - |s| = 0 with u = |r|^(1/2); rationalised root, no cancellation at small s.
+        r = s / (1.0 + 2.0 * h)
+        return r, r
+    # u = |r|^(1/2) solves (1 + h) u^2 + h u - |s| = 0; rationalised root, no cancellation at small s,
+    # and a sqrt argument >= h^2 keeps the derivative finite (1/h) at s = 0.
     root = 2.0 * s / (h + jnp.sqrt(h * h + 4.0 * (1.0 + h) * jnp.abs(s)))
-    return root * jnp.abs(root), root
+    r = root * jnp.abs(root)
+    return r, jnp.tanh(sharpness * r) + root + r
 
 
 def _postprocess(
@@ -196,16 +201,29 @@ class ContactObserver(eqx.Module):
         J_z = jnp.where(valid, J_z, 0.0)
         dt = jnp.where(valid, dt, _SAFE_DT)
 
-        b = params.bandwidth
-        h = jnp.maximum(b * dt, _MIN_H)
-        p_pred = state.p_hat + dt * (tau_bar + J_z.T @ state.f_hat)
-        r, root = _implicit_residual(p - p_pred, h, params.mode)
-        if params.mode == "plain":
-            k2 = r
-        else:
-            k2 = jnp.tanh(params.sharpness * r) + root + r
+        h = jnp.maximum(params.bandwidth * dt, _MIN_H)
+        gain = dt * params.bandwidth**2
         gram = J_z @ J_z.T + params.pinv_damping * jnp.eye(n_feet, dtype=J_z.dtype)
-        f_hat = state.f_hat + dt * b * b * jnp.linalg.solve(gram, J_z @ k2)
+        s0 = p - state.p_hat - dt * (tau_bar + J_z.T @ state.f_hat)
+
+        def feedback(s1: Float[Array, "nv"]) -> tuple[Float[Array, "nv"], Float[Array, "nv"]]:
+            return _residual_and_k2(s1, h, params.sharpness, params.mode)
+
+        def newton(_, df: Float[Array, "F"]) -> Float[Array, "F"]:
+            # k2(r(s)) acts elementwise, so one jvp with a ones tangent gives its diagonal slope.
+            s1 = s0 - dt * (J_z.T @ df)
+            k2, slope = jax.jvp(lambda x: feedback(x)[1], (s1,), (jnp.ones_like(s1),))
+            equation = df - gain * jnp.linalg.solve(gram, J_z @ k2)
+            jacobian = jnp.eye(n_feet, dtype=df.dtype) + gain * dt * jnp.linalg.solve(gram, (J_z * slope) @ J_z.T)
+            return df - jnp.linalg.solve(jacobian, equation)
+
+        # Newton on the force increment of the implicit step: the equation is df - dt b^2 P k2(r(df)),
+        # its Jacobian is I plus a matrix with nonnegative spectrum, and in plain mode it is linear
+        # (one iteration is exact).
+        iterations = 1 if params.mode == "plain" else _NEWTON_ITERS
+        df = jax.lax.fori_loop(0, iterations, newton, jnp.zeros_like(state.f_hat))
+        r, _ = feedback(s0 - dt * (J_z.T @ df))
+        f_hat = state.f_hat + df
         p_hat = p - r
 
         f_filt, contact, soft = _postprocess(params, jnp.clip(f_hat, 0.0, params.f_max), state.f_filt, state.contact)
