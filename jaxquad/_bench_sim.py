@@ -1,0 +1,66 @@
+"""`jaxquad bench --sim`: fleet simulation throughput (robot-steps/s), with and without depth.
+
+One row per (robots, depth): the first chunk's extra time over a steady chunk is reported as the
+compile time; the steady chunk time is the median of a few chunks (state carried between them).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--robots", type=int, nargs="+", metavar="N",
+        help="fleet sizes for --sim (default: 1 64 on CPU, 1024 4096 16384 on GPU)",
+    )  # fmt: skip
+    parser.add_argument("--sim-robot", default="go2", help="robot for --sim (default go2)")
+    parser.add_argument("--sim-world", default="house", choices=["house", "warehouse"])
+    parser.add_argument("--sim-chunk-frames", type=int, default=15, help="camera frames per chunk for --sim")
+    parser.add_argument("--sim-repeats", type=int, default=3, help="steady chunks timed per row")
+
+
+def run(args: argparse.Namespace) -> dict:
+    import time
+
+    import jax
+
+    from jaxquad.sim.fleet import FleetConfig, build_fleet, init, run_chunk
+
+    sizes = args.robots or ([1, 64] if jax.default_backend() == "cpu" else [1024, 4096, 16384])
+    if any(n < 1 for n in sizes):
+        raise ValueError(f"--robots sizes must be >= 1, got {sizes}")
+    rows = []
+    for n in sizes:
+        for depth in (True, False):
+            cfg = FleetConfig(
+                robot=args.sim_robot, world=args.sim_world, n_robots=n, n_worlds=min(n, 4),
+                depth=depth, frames_per_chunk=args.sim_chunk_frames,
+            )  # fmt: skip
+            fleet = build_fleet(cfg)
+            state = jax.block_until_ready(init(fleet))
+            t0 = time.perf_counter()
+            state, out = run_chunk(fleet, state)
+            jax.block_until_ready(out)
+            first = time.perf_counter() - t0
+            times = []
+            for _ in range(max(1, args.sim_repeats)):
+                t0 = time.perf_counter()
+                state, out = run_chunk(fleet, state)
+                jax.block_until_ready(out)
+                times.append(time.perf_counter() - t0)
+            times.sort()
+            steady = times[len(times) // 2]
+            steps = fleet.samples_per_chunk * cfg.log_every
+            rows.append(
+                {
+                    "robots": n,
+                    "depth": f"{cfg.width}x{cfg.height}@{1 / fleet.frame_dt:.2f}Hz" if depth else "off",
+                    "compile_s": max(first - steady, 0.0),
+                    "chunk_ms": 1e3 * steady,
+                    "sim_s_per_chunk": steps * fleet.dt,
+                    "robot_steps_per_s": n * steps / steady,
+                    "fallen": int(jax.device_get(state.fallen).sum()),
+                }
+            )
+    return {"rows": rows, "physics_dt_s": fleet.dt, "log_dt_s": fleet.log_dt}
