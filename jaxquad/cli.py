@@ -11,6 +11,7 @@ _COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("jaxquad.bench", "time the kernels (compile and steady run) for one robot and batches"),
     "eval": ("jaxquad.metrics.cli", "ATE/ARE/APE/RPE of an estimated TUM trajectory against a reference, as evo"),
     "estimate": ("jaxquad.estimate.cli", "contacts and leg-inertial odometry over a robot log (TUM, npz, JSON summary)"),
+    "tune": ("jaxquad.estimate.tune_cli", "tune the contact observer's gains and thresholds on a fleet log (grid search or gradient)"),
     "simulate": ("jaxquad.sim.cli", "run an MJX fleet of robots in generated worlds; write the fleet log, ground-truth TUM and maps"),
 }
 

@@ -16,6 +16,10 @@ from jaxquad.estimate.pipeline import (
 )
 from jaxquad.estimate.run import estimate_log, load_params, run_estimate
 from jaxquad.estimate.scores import contact_scores, detection_delays, force_rmse, odometry_drift
+from jaxquad.estimate.tune import (
+    ContactTruth, GridSpec, ObserverInputs, Unconstrained, fleet_scores, grid_search, gradient_tune, observer_inputs,
+    save_params, surrogate_loss, tune,
+)  # fmt: skip
 
 __all__ = [
     "CONTACT_SOURCES", "AttitudeParams", "AttitudeState", "DifferentiatorParams", "DifferentiatorState",
@@ -23,4 +27,8 @@ __all__ = [
     "contact_scores", "detection_delays", "differentiate", "estimate_attitude", "estimate_fleet",
     "estimate_log", "estimate_robot", "force_rmse", "inputs_from_log", "integrate_twist", "load_params",
     "odometry_drift", "odometry_step", "run_estimate", "se3_exp",
+]
+__all__ += [
+    "ContactTruth", "GridSpec", "ObserverInputs", "Unconstrained", "fleet_scores", "grid_search", "gradient_tune",
+    "observer_inputs", "save_params", "surrogate_loss", "tune",
 ]
