@@ -26,6 +26,7 @@ from .gait import TROT_OFFSETS, leg_phases, raibert_foothold, swing_position
 from .leg_ik import LegGeometry, knee_branch, leg_fk, leg_ik
 
 _GRAVITY = 9.81
+_QD_MAX = 20.0  # rad/s: bound on differenced joint target velocities
 
 
 class Gait(eqx.Module):
@@ -185,6 +186,7 @@ class GaitParams(eqx.Module):
     kd_spine: Float[Array, ""]
     spine_amp: Float[Array, ""]  # spine swing amplitude (rad), in phase with the trot
     k_raibert: Float[Array, ""]  # foothold feedback on velocity error (s)
+    k_velocity: Float[Array, ""]  # stance feet slide faster by this share of the velocity shortfall
     max_step: Float[Array, ""]  # largest foothold offset from the home foot position (m)
     v_max: Float[Array, " 3"]  # command limits vx, vy (m/s), yaw rate (rad/s)
     acc_max: Float[Array, " 3"]  # command rate limits (m/s^2, m/s^2, rad/s^2)
@@ -201,7 +203,7 @@ class GaitParams(eqx.Module):
     def calm(cls, gait: Gait, **overrides) -> "GaitParams":
         """Smooth walking around 0.3-0.5 m/s, level body."""
         values = dict(
-            step_freq=2.0,
+            step_freq=2.5,
             duty=0.5,
             swing_height=0.07,
             body_height=float(gait.body_height),
@@ -210,7 +212,8 @@ class GaitParams(eqx.Module):
             kp_spine=60.0,
             kd_spine=2.0,
             spine_amp=0.05 if gait.has_spine else 0.0,
-            k_raibert=0.05,
+            k_raibert=0.15,
+            k_velocity=0.5,
             max_step=0.15,
             v_max=(0.5, 0.3, 0.8),
             acc_max=(0.5, 0.5, 1.0),
@@ -233,13 +236,14 @@ class GaitParams(eqx.Module):
             step_freq=3.0,
             swing_height=0.08,
             spine_amp=0.1 if gait.has_spine else 0.0,
-            k_raibert=0.08,
+            k_raibert=0.15,
             max_step=0.2,
             v_max=(1.0, 0.5, 1.5),
-            acc_max=(6.0, 4.0, 8.0),
-            roll_amp=float(np.deg2rad(12.0)),
-            pitch_amp=float(np.deg2rad(12.0)),
+            acc_max=(3.0, 2.0, 4.0),
+            roll_amp=0.15,
+            pitch_amp=0.15,
             attitude_freq=0.8,
+            k_attitude=1.0,
             stop_go_period=3.0,
             stop_go_duty=0.7,
         )
@@ -260,6 +264,7 @@ class GaitState(eqx.Module):
     p_level_foot: Float[Array, "4 3"]  # foot centre targets in the level frame (m)
     p_level_lift: Float[Array, "4 3"]  # where each foot last lifted off, level frame (m)
     stance: Bool[Array, " 4"]
+    q_des: Float[Array, "4 3"]  # last joint targets (rad), differenced into target velocities
     ok: Bool[Array, ""]  # False once a non-finite input was seen (torques then stay zero)
 
 
@@ -272,6 +277,7 @@ def gait_init(gait: Gait, params: GaitParams) -> GaitState:
         p_level_foot=p0,
         p_level_lift=p0,
         stance=stance,
+        q_des=leg_ik(gait.legs, gait.p_base_foot_home)[0],
         ok=jnp.ones((), bool),
     )
 
@@ -361,7 +367,11 @@ def gait_step(
     home = _home_level(gait, params)
     z_ground = home[:, 2] - params.k_height * (params.body_height - qpos[2])
     p_prev = state.p_level_foot
-    slide = cmd[:2] + cmd[2] * jnp.stack([-p_prev[:, 1], p_prev[:, 0]], -1)
+    # Stance feet carry the body at the command, plus a push where the body lags behind it.
+    yaw_rate = (R_world_base @ qvel[3:6])[2]
+    v_slide = cmd[:2] + params.k_velocity * jnp.clip(cmd[:2] - v_level, -0.5, 0.5)
+    w_slide = cmd[2] + params.k_velocity * jnp.clip(cmd[2] - yaw_rate, -0.5, 0.5)
+    slide = v_slide + w_slide * jnp.stack([-p_prev[:, 1], p_prev[:, 0]], -1)
     p_stance = jnp.concatenate([p_prev[:, :2] - slide * dt, z_ground[:, None]], -1)
 
     t_stance = params.duty / params.step_freq
@@ -389,7 +399,8 @@ def gait_step(
     q_des, _ = leg_ik(gait.legs, p_trunk_foot)
     idx_q, idx_v = np.asarray(gait.leg_qpos), np.asarray(gait.leg_dof)
     q, qd = qpos[idx_q], qvel[idx_v]
-    tau_pd = params.kp * (q_des - q) - params.kd * qd
+    qd_des = jnp.clip((q_des - state.q_des) / dt, -_QD_MAX, _QD_MAX)
+    tau_pd = params.kp * (q_des - q) + params.kd * (qd_des - qd)
 
     # Gravity share through the stance legs: tau = J^T f, f the push of the foot on the ground.
     n_stance = jnp.maximum(jnp.sum(stance), 1)
@@ -412,6 +423,7 @@ def gait_step(
         p_level_foot=p_level,
         p_level_lift=p_lift,
         stance=stance,
+        q_des=q_des,
         ok=ok,
     )
     return tau, new_state
