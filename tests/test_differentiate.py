@@ -13,7 +13,7 @@ DT = 1.0 / RATE_HZ
 
 @pytest.fixture(scope="module")
 def run():
-    return jax.jit(dif.differentiate)
+    return jax.jit(dif.joint_velocities)
 
 
 def fit_gain_phase(y, t, w):

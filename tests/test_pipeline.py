@@ -183,3 +183,21 @@ def test_cli_end_to_end_on_a_written_log(robot, fixed_feet_log, tmp_path):
     assert main(["estimate", str(log_path), "--out", str(tmp_path / "o2"), "--params", str(tmp_path / "none.yaml")]) == 1
     params.write_text("bandwith: 40\n")
     assert main(["estimate", str(log_path), "--out", str(tmp_path / "o3"), "--params", str(params)]) == 1
+
+
+@pytest.mark.slow
+def test_simulated_log_end_to_end(tmp_path):
+    """`jaxquad simulate` then `jaxquad estimate` with ground-truth contacts on a short walk."""
+    import json
+
+    from jaxquad.cli import main
+
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--robots", "1", "--seconds", "2", "--no-depth", "--no-randomize", "--out", str(sim)]) == 0
+    assert main(["estimate", str(sim / "fleet.npz"), "--out", str(tmp_path / "est"), "--contacts", "truth"]) == 0
+    robot = json.loads((tmp_path / "est" / "summary.json").read_text())["robots"][0]
+    assert not robot["fallen"]
+    assert robot["scores"]["contacts"]["f1"] == 1.0
+    # Leg-inertial odometry on truth contacts: a few percent of the distance, far below dead reckoning.
+    assert robot["scores"]["drift"]["3d_pct"] < 30.0
+    assert robot["scores"]["trajectory"]["ate"]["rmse"] < 0.1

@@ -1,7 +1,7 @@
 """Contact estimation and leg-inertial odometry over robot logs, scoring and tuning."""
 
 from jaxquad.estimate.attitude import AttitudeParams, AttitudeState, attitude_from_acc, estimate_attitude
-from jaxquad.estimate.differentiate import DifferentiatorParams, DifferentiatorState, differentiate
+from jaxquad.estimate.differentiate import DifferentiatorParams, DifferentiatorState, joint_velocities
 from jaxquad.estimate.odometry import Pose, integrate_twist, odometry_step, se3_exp
 from jaxquad.estimate.pipeline import (
     CONTACT_SOURCES,
@@ -24,9 +24,9 @@ from jaxquad.estimate.tune import (
 __all__ = [
     "CONTACT_SOURCES", "AttitudeParams", "AttitudeState", "DifferentiatorParams", "DifferentiatorState",
     "Estimate", "Flags", "PipelineConfig", "PipelineParams", "Pose", "RobotInputs", "attitude_from_acc",
-    "contact_scores", "detection_delays", "differentiate", "estimate_attitude", "estimate_fleet",
+    "contact_scores", "detection_delays", "estimate_attitude", "estimate_fleet",
     "estimate_log", "estimate_robot", "force_rmse", "inputs_from_log", "integrate_twist", "load_params",
-    "odometry_drift", "odometry_step", "run_estimate", "se3_exp",
+    "joint_velocities", "odometry_drift", "odometry_step", "run_estimate", "se3_exp",
 ]
 __all__ += [
     "ContactTruth", "GridSpec", "ObserverInputs", "Unconstrained", "fleet_scores", "grid_search", "gradient_tune",
