@@ -285,7 +285,7 @@ def test_saved_params_load_back_and_reproduce_the_scores(fleet, tmp_path, suffix
     inputs, truth, t = fleet
     spec = tn.GridSpec(bandwidth=(20.0, 50.0), alpha_front=(0.2,), alpha_rear=(0.3,), threshold_on=(4.0, 12.0),
                       off_ratio=(0.5,))  # fmt: skip
-    best, summary = tn.tune("grid", inputs, truth, t, spec=spec, chunk=4)
+    best, summary = tn.tune_fleet("grid", inputs, truth, t, spec=spec, chunk=4)
     assert summary["robots_train"] == 3 and summary["robots_heldout"] == 1
     path = tn.save_params(tmp_path / f"best{suffix}", best, header="tuned by grid search")
     loaded = load_params(path, 4, "mixed").observer
@@ -307,6 +307,6 @@ def test_bad_input_gives_one_line_errors(fleet, tmp_path):
     with pytest.raises(ValueError, match="no training robot"):
         tn.split_robots(1, 0.5)
     with pytest.raises(ValueError, match="method"):
-        tn.tune("random", inputs, truth, t)
+        tn.tune_fleet("random", inputs, truth, t)
     with pytest.raises(ValueError, match="steps"):
         tn.gradient_tune(best, inputs, truth, steps=0)

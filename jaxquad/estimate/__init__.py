@@ -18,7 +18,7 @@ from jaxquad.estimate.run import estimate_log, load_params, run_estimate
 from jaxquad.estimate.scores import contact_scores, detection_delays, force_rmse, odometry_drift
 from jaxquad.estimate.tune import (
     ContactTruth, GridSpec, ObserverInputs, Unconstrained, fleet_scores, grid_search, gradient_tune, observer_inputs,
-    save_params, surrogate_loss, tune,
+    save_params, surrogate_loss, tune_fleet,
 )  # fmt: skip
 
 __all__ = [
@@ -30,5 +30,5 @@ __all__ = [
 ]
 __all__ += [
     "ContactTruth", "GridSpec", "ObserverInputs", "Unconstrained", "fleet_scores", "grid_search", "gradient_tune",
-    "observer_inputs", "save_params", "surrogate_loss", "tune",
+    "observer_inputs", "save_params", "surrogate_loss", "tune_fleet",
 ]

@@ -563,7 +563,7 @@ def split_robots(n: int, holdout: float) -> tuple[np.ndarray, np.ndarray]:
     return np.arange(n - k), np.arange(n - k, n)
 
 
-def tune(
+def tune_fleet(
     method: Literal["grid", "gradient"], inputs: ObserverInputs, truth: ContactTruth, t,
     mode: Literal["plain", "mixed"] = "mixed", holdout: float = 0.25, spec: GridSpec | None = None,
     chunk: int = 256, steps: int = 200, start: ObserverParams | None = None, progress=None, **options,

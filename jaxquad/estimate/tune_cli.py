@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
 
         kwargs = dict(steps=args.steps, learning_rate=args.lr, patience=args.patience)
     try:
-        best, summary = tn.tune(args.method, inputs, truth, t, args.mode, args.holdout, progress=progress, **kwargs)
+        best, summary = tn.tune_fleet(args.method, inputs, truth, t, args.mode, args.holdout, progress=progress, **kwargs)
     finally:
         bar.close()
     walls["total_s"] = time.perf_counter() - t0
