@@ -204,6 +204,7 @@ class ContactObserver(eqx.Module):
         h = jnp.maximum(params.bandwidth * dt, _MIN_H)
         gain = dt * params.bandwidth**2
         gram = J_z @ J_z.T + params.pinv_damping * jnp.eye(n_feet, dtype=J_z.dtype)
+        to_feet = jnp.linalg.solve(gram, J_z)  # P, damped least squares (F, nv)
         s0 = p - state.p_hat - dt * (tau_bar + J_z.T @ state.f_hat)
 
         def feedback(s1: Float[Array, "nv"]) -> tuple[Float[Array, "nv"], Float[Array, "nv"]]:
@@ -213,15 +214,18 @@ class ContactObserver(eqx.Module):
             # k2(r(s)) acts elementwise, so one jvp with a ones tangent gives its diagonal slope.
             s1 = s0 - dt * (J_z.T @ df)
             k2, slope = jax.jvp(lambda x: feedback(x)[1], (s1,), (jnp.ones_like(s1),))
-            equation = df - gain * jnp.linalg.solve(gram, J_z @ k2)
-            jacobian = jnp.eye(n_feet, dtype=df.dtype) + gain * dt * jnp.linalg.solve(gram, (J_z * slope) @ J_z.T)
+            equation = df - gain * (to_feet @ k2)
+            jacobian = jnp.eye(n_feet, dtype=df.dtype) + gain * dt * (to_feet * slope) @ J_z.T
             return df - jnp.linalg.solve(jacobian, equation)
 
         # Newton on the force increment of the implicit step: the equation is df - dt b^2 P k2(r(df)),
         # its Jacobian is I plus a matrix with nonnegative spectrum, and in plain mode it is linear
         # (one iteration is exact).
-        iterations = 1 if params.mode == "plain" else _NEWTON_ITERS
-        df = jax.lax.fori_loop(0, iterations, newton, jnp.zeros_like(state.f_hat))
+        df = jnp.zeros_like(state.f_hat)
+        if params.mode == "plain":
+            df = newton(0, df)
+        else:
+            df = jax.lax.fori_loop(0, _NEWTON_ITERS, newton, df)
         r, _ = feedback(s0 - dt * (J_z.T @ df))
         f_hat = state.f_hat + df
         p_hat = p - r

@@ -4,6 +4,7 @@ quadruped simulated in MuJoCo C with known foot forces; plus jit/vmap/grad and b
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 
@@ -172,25 +173,22 @@ _FORCE_BEFORE = np.array([40.0, 30.0, 35.0, 0.0])  # world z, on each foot (N)
 _FORCE_AFTER = np.array([40.0, 30.0, 35.0, 25.0])
 
 
-def _simulate_quadruped():
+def _simulate(m, trunk, sites, qpos_adr, dof_adr):
     """Samples (every 2 ms) of p = M v, tau_bar = S^T tau + C^T v - g and J_z from MuJoCo C while
     known z forces act on the feet, a known wrench supports the trunk and PD joints track sinusoids
-    (no ground, no contact).
+    (no ground, no contact); also the raw state, motor torques and support force at each sample.
     C^T v = Mdot v - C v with Mdot v by central differences of M along v, C v + g = qfrc_bias."""
-    m = mujoco.MjModel.from_xml_string(_QUAD_XML)
     d, d_fd = mujoco.MjData(m), mujoco.MjData(m)
     q_stand = np.tile([0.0, 0.9, -1.8], 4)
-    d.qpos[7:] = q_stand
-    sites = [m.site(f"{n}_foot").id for n, *_ in _LEGS]
+    d.qpos[qpos_adr] = q_stand
     bodies = [m.site_bodyid[s] for s in sites]
     phase = np.arange(12) * 0.7
     nv, eps = m.nv, 1e-6
     M, M_plus, M_minus = (np.zeros((nv, nv)) for _ in range(3))
     jacp = np.zeros((3, nv))
-    trunk = m.body("trunk").id
     weight = -m.opt.gravity[2] * m.body_subtreemass[trunk]
     qfrc_support = np.zeros(nv)
-    rows = {"p": [], "tau": [], "J": [], "t": []}
+    rows = {name: [] for name in ("p", "tau", "J", "t", "qpos", "qvel", "ctrl", "support")}
     for k in range(round(_T_END / _SIM_DT)):
         t = k * _SIM_DT
         mujoco.mj_forward(m, d)
@@ -211,9 +209,11 @@ def _simulate_quadruped():
                 J_z[i] = jacp[2]
             rows["J"].append(J_z)
             rows["t"].append(t)
+            for name, value in (("qpos", d.qpos), ("qvel", d.qvel), ("ctrl", d.ctrl), ("support", qfrc_support)):
+                rows[name].append(value.copy())
             # The joint PD runs at the sample rate and holds its torque until the next sample.
             q_des = q_stand + 0.3 * np.sin(2 * np.pi * 1.5 * t + phase)
-            d.ctrl[:] = 40.0 * (q_des - d.qpos[7:]) - 0.6 * d.qvel[6:]
+            d.ctrl[:] = 40.0 * (q_des - d.qpos[qpos_adr]) - 0.6 * d.qvel[dof_adr]
         # Known support of the trunk: cancels gravity and the feet's net force and moment, so the
         # base stays nearly still; it is part of the known generalized force, like the motors.
         forces = _FORCE_BEFORE if t < _T_STEP else _FORCE_AFTER
@@ -231,7 +231,9 @@ def _simulate_quadruped():
 
 @pytest.fixture(scope="module")
 def quad():
-    return _simulate_quadruped()
+    m = mujoco.MjModel.from_xml_string(_QUAD_XML)
+    sites = [m.site(f"{n}_foot").id for n, *_ in _LEGS]
+    return _simulate(m, m.body("trunk").id, sites, np.arange(7, 19), np.arange(6, 18))
 
 
 def _quad_inputs(quad, n=None):
@@ -267,6 +269,39 @@ def test_quadruped_steady_state_force_within_two_percent(quad, quad_estimates, m
             tol = 0.02 * np.where(truth > 0, truth, _FORCE_BEFORE.max())
             assert np.all(err <= tol), (mode, name, t0, err, tol)
         np.testing.assert_array_equal(est.contact[window], np.broadcast_to(truth > 0, est.contact[window].shape))
+
+
+@pytest.mark.slow  # compiling momentum_terms (MJX) takes most of a minute on CPU
+def test_go2_with_library_momentum_terms(record_property):
+    """The real robot: p, tau_bar, J_z from jaxquad.dynamics.momentum_terms (MJX) agree with MuJoCo C
+    on the same samples, and the observer fed with them recovers the foot forces within 2%."""
+    from jaxquad.dynamics import momentum_terms
+    from jaxquad.robots import load
+
+    robot = load("go2")
+    m = copy.copy(robot.mj_model)
+    m.opt.timestep = _SIM_DT
+    m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
+    # Joint friction and damping are forces the observer is not told about: off, as in the quad test.
+    m.dof_frictionloss[:] = 0.0
+    m.dof_damping[:] = 0.0
+    m.actuator_ctrllimited[:] = 0
+    sim = _simulate(m, robot.base_body_id, robot.foot_site_ids, robot.qpos_adr, robot.dof_adr)
+    terms = jax.jit(jax.vmap(lambda q, v, tau: momentum_terms(robot, q, v, tau)))
+    p, tau_bar, J_z = (np.asarray(x, np.float64) for x in terms(*(jnp.asarray(sim[k]) for k in ("qpos", "qvel", "ctrl"))))
+    np.testing.assert_allclose(p, sim["p"], atol=1e-3 * np.abs(sim["p"]).max())
+    np.testing.assert_allclose(tau_bar + sim["support"], sim["tau"], atol=2e-3 * np.abs(sim["tau"]).max())
+    np.testing.assert_allclose(J_z, sim["J"], atol=1e-5)
+
+    t = sim["t"][1:]
+    inputs = _quad_inputs({"p": p, "tau": tau_bar + sim["support"], "J": J_z, "t": sim["t"]})
+    for mode in ("plain", "mixed"):
+        est = jax.tree.map(np.asarray, _run(ObserverParams.paper(4, mode), jnp.asarray(p[0], jnp.float32), *inputs)[1])
+        for (t0, t1), truth in (((0.35, _T_STEP), _FORCE_BEFORE), ((0.95, _T_END), _FORCE_AFTER)):
+            window = (t >= t0) & (t < t1)
+            err = np.abs(est.force_z[window] - truth).max(axis=0)
+            assert np.all(err <= 0.02 * np.where(truth > 0, truth, _FORCE_BEFORE.max())), (mode, t0, err)
+        record_property(f"go2_lag_{mode}_ms", round(1e3 * _detection_lag(est, t), 3))
 
 
 def _detection_lag(est, t):
@@ -336,14 +371,13 @@ def _loss(params, inputs, p0):
     return est.contact_soft[:, :3].sum() + 0.01 * est.force_z_filtered[:, :3].sum()
 
 
-_loss_jit = jax.jit(_loss)
-_grad = jax.jit(jax.grad(_loss))
+_value_and_grad = jax.jit(jax.value_and_grad(_loss))
 
 
 @pytest.mark.parametrize("mode", ["plain", "mixed"])
 def test_gradients_through_200_steps_finite_and_match_finite_differences(quad, mode):
     params, inputs, p0 = ObserverParams.paper(4, mode), _quad_inputs(quad, 200), _p0(quad)
-    g = _grad(params, inputs, p0)
+    _, g = _value_and_grad(params, inputs, p0)
     for name in ("bandwidth", "alpha", "threshold_on", "threshold_off", "sharpness", "f_max", "soft_temperature"):
         assert np.isfinite(getattr(g, name)).all(), name
     for name in ("bandwidth", "alpha", "threshold_on"):
@@ -351,12 +385,12 @@ def test_gradients_through_200_steps_finite_and_match_finite_differences(quad, m
     # d loss / d bandwidth against a central difference (step small against the tanh kink scale).
     step = 0.05
     shifted = [dataclasses.replace(params, bandwidth=params.bandwidth + d) for d in (step, -step)]
-    fd = (_loss_jit(shifted[0], inputs, p0) - _loss_jit(shifted[1], inputs, p0)) / (2 * step)
+    fd = (_value_and_grad(shifted[0], inputs, p0)[0] - _value_and_grad(shifted[1], inputs, p0)[0]) / (2 * step)
     np.testing.assert_allclose(g.bandwidth, fd, rtol=0.02)
     # Zero residual at every step: a body at rest with no force, where |s|^(1/2) is singular.
     n, nv = 200, quad["p"].shape[1]
     rest = (jnp.zeros((n, nv)), jnp.zeros((n, nv)), inputs[2], jnp.full(n, 0.002))
-    g0 = _grad(params, rest, jnp.zeros(nv))
+    _, g0 = _value_and_grad(params, rest, jnp.zeros(nv))
     assert all(np.isfinite(leaf).all() for leaf in jax.tree.leaves(g0))
 
 
