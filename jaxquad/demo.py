@@ -35,7 +35,7 @@ import numpy as np
 SOURCES = ("mixed", "truth")  # contact sources the demo compares
 BAND_HEIGHT = 5  # px, the paper's simulation band
 RANGE_MIN, RANGE_MAX = 0.0, 10.0  # m, the paper's simulation scan limits
-HIT_TOLERANCE = 0.1  # m: a scan end point this close to an occupied cell agrees with the map
+HIT_TOLERANCE = 0.2  # m (4 map cells): a scan end point this close to an occupied cell agrees with the map
 
 
 def _resolution(text: str) -> tuple[int, int]:

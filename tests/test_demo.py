@@ -1,0 +1,149 @@
+"""jaxquad demo: scan/map helpers against brute-force references, the picture geometry against the
+scan kernel, and one reduced end-to-end run (marked slow: it compiles the simulator and the
+estimation pipeline)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from jaxquad import demo, report
+from jaxquad.io import OccupancyMap
+
+
+def _random_map(rng, rows=40, cols=50, resolution=0.05, origin=(-1.0, 0.5, 0.0)):
+    grid = np.zeros((rows, cols), np.int8)
+    grid[rng.random((rows, cols)) < 0.03] = 100
+    grid[:3, :] = -1
+    return OccupancyMap(grid, resolution, origin)
+
+
+def test_scan_map_hits_matches_brute_force():
+    rng = np.random.default_rng(3)
+    occ = _random_map(rng)
+    rows, cols = occ.grid.shape
+    pts = np.c_[rng.uniform(-1.5, 2.2, 400), rng.uniform(0.0, 2.8, 400)]
+    pts[::37] = np.nan
+    tol = 0.12
+    got = demo.scan_map_hits(pts, occ, tol)
+    occ_rc = np.argwhere(occ.grid >= 50)
+    expected = np.zeros(len(pts), bool)
+    for j, p in enumerate(pts):
+        if not np.all(np.isfinite(p)):
+            continue
+        c = int(np.floor((p[0] - occ.origin[0]) / occ.resolution))
+        r = int(np.floor((p[1] - occ.origin[1]) / occ.resolution))
+        if not (0 <= r < rows and 0 <= c < cols):
+            continue
+        d = min(np.hypot(r - rr, c - cc) * occ.resolution for rr, cc in occ_rc)
+        expected[j] = d <= tol
+    np.testing.assert_array_equal(got, expected)
+    assert expected.any() and (~expected).any()
+
+
+def test_scan_map_hits_empty_map_and_shape():
+    occ = OccupancyMap(np.zeros((5, 5), np.int8), 0.1, (0.0, 0.0, 0.0))
+    assert demo.scan_map_hits(np.zeros((2, 3, 2)), occ).shape == (2, 3)
+    assert not demo.scan_map_hits(np.zeros((2, 3, 2)), occ).any()
+
+
+def test_band_rows_are_the_rows_the_kernel_samples():
+    # Depth grows with the row (z = 1 + 0.01 v), so the kernel's per-column minimum range reveals the
+    # smallest row it sampled: range = z sqrt(1 + ((u - cx)/fx)^2).
+    from jaxquad.kernels import stabilized_scan
+
+    height, width, h = 60, 80, 5
+    K = np.array([[70.0, 0, 39.5], [0, 70.0, 29.5], [0, 0, 1]])
+    v = np.arange(height, dtype=np.float32)[:, None]
+    depth = np.broadcast_to(1.0 + 0.01 * v, (height, width)).astype(np.float32)
+    u = np.arange(width)
+    for roll, pitch in ((0.0, 0.0), (0.12, -0.08), (-0.2, 0.15)):
+        scan = stabilized_scan(depth, (K[0, 0], K[1, 1], K[0, 2], K[1, 2]), roll, pitch, h, 0.0, 100.0)
+        z = np.asarray(scan.ranges) / np.sqrt(1 + ((u - K[0, 2]) / K[0, 0]) ** 2)
+        rows = report.band_rows(K, roll, pitch, h, width)
+        rows = np.where((rows >= 0) & (rows < height), rows, np.inf)
+        np.testing.assert_allclose(z, 1.0 + 0.01 * rows.min(0), rtol=1e-5)
+
+
+def test_roll_pitch_closed_form():
+    rng = np.random.default_rng(0)
+    yaw, pitch, roll = rng.uniform(-np.pi, np.pi, 20), rng.uniform(-1.4, 1.4, 20), rng.uniform(-3, 3, 20)
+    # q = q_z(yaw) q_y(pitch) q_x(roll), written out.
+    cy, sy, cp, sp, cr, sr = (f(a / 2) for a in (yaw, pitch, roll) for f in (np.cos, np.sin))
+    q = np.stack([cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+                  cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy], -1)  # fmt: skip
+    r, p = report.roll_pitch(q)
+    np.testing.assert_allclose(p, pitch, atol=1e-9)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (r - roll))), 0.0, atol=1e-9)
+
+
+def test_camera_pose_and_scan_points_closed_form():
+    yaw = 0.7
+    gt = np.array([1.0, 2.0, 0.3, np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+    T = np.eye(4)
+    T[:3, 3] = [0.28, 0.0, 0.05]
+    xy, heading = demo._camera_pose_2d(gt, T)
+    np.testing.assert_allclose(xy, [1.0 + 0.28 * np.cos(yaw), 2.0 + 0.28 * np.sin(yaw)], atol=1e-12)
+    assert heading == pytest.approx(yaw)
+    pts = report.scan_points_world(np.array([2.0, np.inf, 1.0]), np.array([0.0, 0.1, np.pi / 2]), xy, yaw)
+    np.testing.assert_allclose(pts[0], xy + 2.0 * np.array([np.cos(yaw), np.sin(yaw)]), atol=1e-12)
+    np.testing.assert_allclose(pts[1], xy + np.array([-np.sin(yaw), np.cos(yaw)]), atol=1e-12)
+    assert pts.shape == (2, 2)
+
+
+def test_frame_samples_nearest():
+    t = np.arange(1, 101) * 0.004
+    depth_t = np.array([0.004, 0.0319, 0.032, 0.1999, 0.4, 0.5])
+    expected = [int(np.argmin(np.abs(t - x))) for x in depth_t]
+    np.testing.assert_array_equal(demo._frame_samples(t, depth_t), expected)
+
+
+def test_mean_scores_and_table():
+    robots = [
+        {"scores": {"contacts": {"f1": 0.5, "precision": 1.0, "recall": 0.25}, "drift": {"horizontal_pct": 2.0, "3d_pct": 4.0},
+                    "trajectory": {"ate": {"rmse": 0.1}, "rpe_2m": {"rmse": 0.3}}}},
+        {"scores": {"contacts": {"f1": 1.0, "precision": 0.5, "recall": 1.0}, "drift": {"horizontal_pct": 4.0, "3d_pct": 8.0}}},
+    ]  # fmt: skip
+    m = demo.mean_scores(robots)
+    assert m["contact F1"] == 0.75 and m["drift 3D %"] == 6.0 and m["ATE m"] == 0.1 and m["RPE m"] == 0.3
+    assert "force RMSE N" not in m
+    text = demo.format_table({"a": m, "b": {}}, {"baseline": {"map_agreement_pct": 50.0, "no_reading_pct": 1.0}})
+    assert "0.750" in text and "6.0" in text and "50.0" in text
+    assert text.splitlines()[1].split()[-1] == "-"
+
+
+def test_refuses_foreign_folder(tmp_path):
+    (tmp_path / "keep.txt").write_text("x")
+    with pytest.raises(ValueError, match="holds no earlier demo"):
+        demo.run_demo(tmp_path, robots=1, seconds=1.0)
+    with pytest.raises(ValueError, match="--robots"):
+        demo.run_demo(tmp_path / "new", robots=0)
+    assert (tmp_path / "keep.txt").read_text() == "x" and not (tmp_path / "new").exists()
+
+
+@pytest.mark.slow
+def test_demo_end_to_end(tmp_path):
+    out = tmp_path / "report"
+    s = demo.run_demo(out, robots=1, seconds=1.0, style="calm", resolution=(32, 24), progress=False)
+    on_disk = json.loads((out / "summary.json").read_text())
+    assert on_disk["sources"] == s["sources"] and on_disk["kind"] == "jaxquad demo"
+    for name in s["files"]:
+        assert (out / name).is_file(), name
+    for png in ("trajectories.png", "contacts.png", "scan_frame.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    for name in ("sim/fleet.npz", "sim/gt_0000.tum", "estimate_mixed/robot_000.tum", "estimate_truth/robot_000.npz"):
+        assert name in s["files"]
+    # Ground-truth contacts scored against ground truth: exact.
+    assert s["sources"]["truth"]["contact F1"] == 1.0
+    assert 0.0 <= s["sources"]["mixed"]["contact F1"] <= 1.0
+    for src in s["sources"].values():
+        assert all(np.isfinite(v) for v in src.values())
+    for band in ("baseline", "stabilized"):
+        assert 0 <= s["scans"][band]["map_agreement_pct"] <= 100 and s["scans"][band]["rays"] > 0
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary folder left
+    # A second run replaces the earlier demo folder.
+    (out / "stale.txt").write_text("old")
+    demo.run_demo(out, robots=1, seconds=1.0, style="calm", resolution=(32, 24), progress=False)
+    assert not (out / "stale.txt").exists() and (out / "summary.json").is_file()
