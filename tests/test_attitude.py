@@ -40,7 +40,7 @@ def run():
 
 
 def tilt_error(q_est, R_true):
-    up_est = np.stack([np.asarray(quat_to_matrix(q))[2] for q in q_est])
+    up_est = np.asarray(jax.vmap(quat_to_matrix)(jnp.asarray(q_est)))[:, 2]
     up_true = R_true[:, 2, :]
     return np.arccos(np.clip((up_est * up_true).sum(1), -1, 1))
 
