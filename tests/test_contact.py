@@ -173,8 +173,8 @@ _FORCE_BEFORE = np.array([40.0, 30.0, 35.0, 0.0])  # world z, on each foot (N)
 _FORCE_AFTER = np.array([40.0, 30.0, 35.0, 25.0])
 
 
-def _simulate(m, trunk, sites, qpos_adr, dof_adr):
-    """Samples (every 2 ms) of p = M v, tau_bar = S^T tau + C^T v - g and J_z from MuJoCo C while
+def _simulate(m, trunk, sites, qpos_adr, dof_adr, substeps=_SUBSTEPS):
+    """Samples (every `substeps` ms) of p = M v, tau_bar = S^T tau + C^T v - g and J_z from MuJoCo C while
     known z forces act on the feet, a known wrench supports the trunk and PD joints track sinusoids
     (no ground, no contact); also the raw state, motor torques and support force at each sample.
     C^T v = Mdot v - C v with Mdot v by central differences of M along v, C v + g = qfrc_bias."""
@@ -192,7 +192,7 @@ def _simulate(m, trunk, sites, qpos_adr, dof_adr):
     for k in range(round(_T_END / _SIM_DT)):
         t = k * _SIM_DT
         mujoco.mj_forward(m, d)
-        if k % _SUBSTEPS == 0:
+        if k % substeps == 0:
             # A sample: qfrc_actuator is still the torque held over the interval that ends here.
             mujoco.mj_fullM(m, d, M)
             for sign, out in ((1.0, M_plus), (-1.0, M_minus)):
@@ -226,14 +226,18 @@ def _simulate(m, trunk, sites, qpos_adr, dof_adr):
         for site, body, fz in zip(sites, bodies, forces):
             mujoco.mj_applyFT(m, d, np.array([0.0, 0.0, fz]), np.zeros(3), d.site_xpos[site], body, d.qfrc_applied)
         mujoco.mj_step(m, d)
-    return {k: np.asarray(v) for k, v in rows.items()}
+    return {k: np.asarray(v) for k, v in rows.items()} | {"dt": substeps * _SIM_DT}
+
+
+def _simulate_quad(substeps):
+    m = mujoco.MjModel.from_xml_string(_QUAD_XML)
+    sites = [m.site(f"{n}_foot").id for n, *_ in _LEGS]
+    return _simulate(m, m.body("trunk").id, sites, np.arange(7, 19), np.arange(6, 18), substeps)
 
 
 @pytest.fixture(scope="module")
 def quad():
-    m = mujoco.MjModel.from_xml_string(_QUAD_XML)
-    sites = [m.site(f"{n}_foot").id for n, *_ in _LEGS]
-    return _simulate(m, m.body("trunk").id, sites, np.arange(7, 19), np.arange(6, 18))
+    return _simulate_quad(_SUBSTEPS)
 
 
 def _quad_inputs(quad, n=None):
@@ -241,7 +245,7 @@ def _quad_inputs(quad, n=None):
     n = len(quad["t"]) - 1 if n is None else n
     return (
         jnp.asarray(quad["p"][1 : n + 1], jnp.float32), jnp.asarray(quad["tau"][1 : n + 1], jnp.float32),
-        jnp.asarray(quad["J"][1 : n + 1], jnp.float32), jnp.full(n, _SIM_DT * _SUBSTEPS, jnp.float32),
+        jnp.asarray(quad["J"][1 : n + 1], jnp.float32), jnp.full(n, quad["dt"], jnp.float32),
     )
 
 
@@ -294,7 +298,7 @@ def test_go2_with_library_momentum_terms(record_property):
     np.testing.assert_allclose(J_z, sim["J"], atol=1e-5)
 
     t = sim["t"][1:]
-    inputs = _quad_inputs({"p": p, "tau": tau_bar + sim["support"], "J": J_z, "t": sim["t"]})
+    inputs = _quad_inputs({"p": p, "tau": tau_bar + sim["support"], "J": J_z, "t": sim["t"], "dt": sim["dt"]})
     for mode in ("plain", "mixed"):
         est = jax.tree.map(np.asarray, _run(ObserverParams.paper(4, mode), jnp.asarray(p[0], jnp.float32), *inputs)[1])
         for (t0, t1), truth in (((0.35, _T_STEP), _FORCE_BEFORE), ((0.95, _T_END), _FORCE_AFTER)):
@@ -302,6 +306,18 @@ def test_go2_with_library_momentum_terms(record_property):
             err = np.abs(est.force_z[window] - truth).max(axis=0)
             assert np.all(err <= 0.02 * np.where(truth > 0, truth, _FORCE_BEFORE.max())), (mode, t0, err)
         record_property(f"go2_lag_{mode}_ms", round(1e3 * _detection_lag(est, t), 3))
+
+
+@pytest.mark.parametrize("mode", ["plain", "mixed"])
+def test_quadruped_high_bandwidth_at_4ms_samples_stays_within_two_percent(mode):
+    # h = b dt = 0.4, where an explicit k2 update of the mixed observer chatters (limit cycle of b^2 dt = 40 N).
+    quad = _simulate_quad(4)
+    t = quad["t"][1:]
+    est = jax.tree.map(np.asarray, _run(ObserverParams.paper(4, mode, bandwidth=100.0), _p0(quad), *_quad_inputs(quad))[1])
+    for (t0, t1), truth in (((0.35, _T_STEP), _FORCE_BEFORE), ((0.95, _T_END), _FORCE_AFTER)):
+        window = (t >= t0) & (t < t1)
+        err = np.abs(est.force_z[window] - truth).max(axis=0)
+        assert np.all(err <= 0.02 * np.where(truth > 0, truth, _FORCE_BEFORE.max())), (mode, t0, err)
 
 
 def _detection_lag(est, t):
