@@ -1,7 +1,7 @@
 """`jaxquad estimate LOG --out DIR`: contacts and leg-inertial odometry over a robot log.
 
-Writes per robot a TUM trajectory and an .npz of contacts, forces, twists and flags, and
-summary.json with flag counts and, when the log has ground truth, scores (see jaxquad.estimate.run).
+Writes per robot a TUM trajectory, an .npz of contacts, forces, twists and flags, stabilized and
+baseline scans when the log has depth, and summary.json with flag counts and, when the log has ground truth, scores (see jaxquad.estimate.run).
 """
 
 from __future__ import annotations
@@ -19,6 +19,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="mixed",
         help="contact source: momentum observer (plain or mixed mode), the robot's sensors, or ground truth",
     )
+    parser.add_argument("--band-height", type=int, default=5, help="scan band height in px (5 sim, 30 real robot)")
+    parser.add_argument("--range-min", type=float, default=0.2, help="scan minimum range, m")
+    parser.add_argument("--range-max", type=float, default=8.0, help="scan maximum range, m")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -35,7 +38,9 @@ def run(args: argparse.Namespace) -> int:
         bar.update(done - bar.n)
 
     try:
-        summary = run_estimate(args.log, args.out, args.contacts, args.params, progress)
+        summary = run_estimate(
+            args.log, args.out, args.contacts, args.params, progress, args.band_height, args.range_min, args.range_max
+        )
     finally:
         bar.close()
     brief = {"robots": len(summary["robots"]), "fallen": sum(r["fallen"] for r in summary["robots"])}

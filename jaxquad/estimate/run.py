@@ -6,6 +6,8 @@ Output folder, per robot i (`robot_000`, ... for a fleet, `robot` for a single l
                     contact_soft, force_z, force_z_filtered (N), qd, and one bool (T,) array per flag
                     (flag_bad_joints, flag_bad_imu, flag_bad_torque, flag_gap, flag_no_stance,
                     flag_fallen)
+  <name>_scans.npz  when the log has depth: depth_t, ranges_stabilized and ranges_baseline (F, W) m
+                    (+inf = no reading), bearings (W,) rad, roll and pitch (F,) rad used per frame
   summary.json      configuration, per-robot flag counts and, where the log has ground truth,
                     scores (contact F1 and delays, force RMSE, drift, ATE/RPE)
 """
@@ -108,8 +110,13 @@ def _trajectory_metrics(t, est, gt, valid) -> dict:
         return {"error": str(e)}
 
 
-def run_estimate(log_path, out_dir, contacts: str = "truth", params_path=None, progress=None) -> dict:
-    """Estimate over the log at `log_path`, write the output folder, return the summary dict."""
+def run_estimate(
+    log_path, out_dir, contacts: str = "truth", params_path=None, progress=None,
+    band_height: int = 5, range_min: float = 0.2, range_max: float = 8.0,
+) -> dict:  # fmt: skip
+    """Estimate over the log at `log_path`, write the output folder, return the summary dict.
+
+    band_height (px) and range_min/range_max (m) configure the scans of logs with depth."""
     from jaxquad.io import TumTrajectory, load_log, write_tum
     from jaxquad.robots import load
 
@@ -132,6 +139,15 @@ def run_estimate(log_path, out_dir, contacts: str = "truth", params_path=None, p
         q = est["q_world_base"]
         write_tum(out_dir / f"{name}.tum", TumTrajectory(t, est["p_world_base"], q[:, [1, 2, 3, 0]]))
         np.savez(out_dir / f"{name}.npz", t=t, **est, **{f"flag_{k}": v for k, v in flags.items()})
+        if "depth" in log:
+            from jaxquad.estimate.scans import log_scans
+
+            depth = np.asarray(log["depth"])[i] if fleet else np.asarray(log["depth"])
+            sc = log_scans(depth, np.asarray(log["depth_t"]), np.asarray(log["K"]), t, q, band_height,
+                           range_min, range_max)  # fmt: skip
+            np.savez(out_dir / f"{name}_scans.npz", depth_t=np.asarray(log["depth_t"]),
+                     **{k: np.asarray(getattr(sc, k)) for k in ("ranges_stabilized", "ranges_baseline",
+                                                                "bearings", "roll", "pitch")})  # fmt: skip
         valid = ~flags["fallen"]
         log_i = {k: (np.asarray(v)[i] if fleet else v) for k, v in log.items()
                  if k.startswith("gt_")}  # fmt: skip
