@@ -310,3 +310,30 @@ def test_bad_input_gives_one_line_errors(fleet, tmp_path):
         tn.tune_fleet("random", inputs, truth, t)
     with pytest.raises(ValueError, match="steps"):
         tn.gradient_tune(best, inputs, truth, steps=0)
+
+
+def test_cli_one_line_errors(tmp_path, capsys):
+    from jaxquad.cli import main
+
+    assert main(["tune", "--log", str(tmp_path / "none.npz"), "--method", "grid", "--out", str(tmp_path / "p.yaml")]) == 1
+    assert "log file not found" in capsys.readouterr().err
+    assert main(["tune", "--log", str(tmp_path / "none.npz"), "--method", "grid", "--out", str(tmp_path / "p.txt")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "--out must end in" in err and "\n" not in err
+
+
+@pytest.mark.slow
+def test_cli_end_to_end_on_a_written_log(robot, sims, tmp_path, capsys):
+    from jaxquad.cli import main
+    from jaxquad.io import save_log
+
+    log = _fleet_log(robot, [{k: v[:12] for k, v in s.items()} for s in sims[:2]])
+    save_log(tmp_path / "fleet.npz", log)
+    out = tmp_path / "best.json"
+    args = ["tune", "--log", str(tmp_path / "fleet.npz"), "--method", "grid", "--grid-size", "1,1,1,2,1", "--out", str(out)]
+    assert main(args) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["configurations"] == 2 and summary["robots_heldout"] == 1
+    assert json.loads((tmp_path / "best.summary.json").read_text()) == summary
+    loaded = load_params(out, 4, "mixed").observer
+    np.testing.assert_allclose(loaded.bandwidth, summary["params"]["bandwidth"])

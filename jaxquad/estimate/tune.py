@@ -150,6 +150,7 @@ def observer_inputs(
 
     flat = [a.reshape(n * T, -1).astype(np.float32) for a in (qpos, qvel, tau)]
     fn, total = _momentum_fn(robot), n * T
+    chunk = max(1, min(chunk, total))
     parts = []
     for start in range(0, total, chunk):
         piece = [a[start : start + chunk] for a in flat]
