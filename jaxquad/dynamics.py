@@ -20,6 +20,7 @@ the call site. `m` is an `mjx.Model` (traced: masses and inertias may be swept w
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -30,43 +31,59 @@ from mujoco import mjx
 from jaxquad.robots import Robot
 
 __all__ = [
+    "LegKinematics",
     "bias_forces",
     "coriolis_transpose_v",
     "foot_jacobians_base",
     "foot_jacobians_world",
     "gravity_forces",
     "integrate_pos",
+    "leg_kinematics",
     "mass_matrix",
     "momentum_terms",
     "p_base_foot",
-    "p_world_foot",
     "v_base_foot",
 ]
 
 
-def _position_data(m: mjx.Model, qpos: Array, qvel: Array | None = None) -> mjx.Data:
-    """Forward kinematics and composite inertias for one configuration."""
-    d = mjx.make_data(m)
-    d = d.replace(qpos=qpos) if qvel is None else d.replace(qpos=qpos, qvel=qvel)
-    d = mjx.kinematics(m, d)
-    return mjx.com_pos(m, d)
+def _position_data(m: mjx.Model, qpos: Array) -> mjx.Data:
+    """Forward kinematics and body inertias/motion axes (com_pos) for one configuration."""
+    d = mjx.make_data(m).replace(qpos=qpos)
+    return mjx.com_pos(m, mjx.kinematics(m, d))
 
 
 def mass_matrix(m: mjx.Model, qpos: Float[Array, "nq"]) -> Float[Array, "nv nv"]:
     """Joint-space inertia M(q) (nv, nv), armature included, as MuJoCo's `mj_fullM` (kg, kg m, kg m^2)."""
-    d = mjx.crb(m, _position_data(m, qpos))
-    return mjx.full_m(m, d)
+    return mjx.full_m(m, mjx.crb(m, _position_data(m, qpos)))
 
 
 def bias_forces(m: mjx.Model, qpos: Float[Array, "nq"], qvel: Float[Array, "nv"]) -> Float[Array, "nv"]:
     """h = C(q, v) v + g(q) (nv,), MuJoCo's `qfrc_bias` (N, N m)."""
-    d = mjx.com_vel(m, _position_data(m, qpos, qvel))
-    return mjx.rne(m, d).qfrc_bias
+    return _bias(m, _position_data(m, qpos), qvel)
 
 
 def gravity_forces(m: mjx.Model, qpos: Float[Array, "nq"]) -> Float[Array, "nv"]:
     """g(q) (nv,): generalized gravity force, the bias at zero velocity (N, N m)."""
-    return bias_forces(m, qpos, jnp.zeros(m.nv, qpos.dtype))
+    return _bias(m, _position_data(m, qpos), jnp.zeros(m.nv, qpos.dtype))
+
+
+def _bias(m: mjx.Model, d: mjx.Data, qvel: Array) -> Array:
+    """Recursive Newton-Euler bias at d's configuration and velocity qvel."""
+    return mjx.rne(m, mjx.com_vel(m, d.replace(qvel=qvel))).qfrc_bias
+
+
+def _momentum_and_rate(m: mjx.Model, qpos: Array, qvel: Array) -> tuple[Array, Array, mjx.Data]:
+    """(M v, Mdot v, data at qpos): one kinematics pass under a forward-mode JVP along
+    q(t) = integrate_pos(q, v, t) at t = 0, so the free joint's quaternion moves along its
+    body-frame angular velocity exactly as in MuJoCo."""
+
+    def path(t):
+        d = _position_data(m, integrate_pos(m, qpos, qvel, t))
+        return mjx.full_m(m, mjx.crb(m, d)) @ qvel, d
+
+    zero, one = jnp.zeros((), qpos.dtype), jnp.ones((), qpos.dtype)
+    p, mdot_v, d = jax.jvp(path, (zero,), (one,), has_aux=True)
+    return p, mdot_v, d
 
 
 def integrate_pos(
@@ -96,13 +113,11 @@ def coriolis_transpose_v(
 ) -> Float[Array, "nv"]:
     """C(q, v)^T v (nv,) for the Christoffel-consistent C: Mdot v - C v (N, N m).
 
-    Mdot = d/dt M(q(t)) at t = 0 along q(t) = integrate_pos(q, v, t), by one forward-mode JVP, so
-    the free joint's quaternion moves along its body-frame angular velocity exactly as MuJoCo's.
+    Mdot = d/dt M(q(t)) at t = 0 along q(t) = integrate_pos(q, v, t), by a forward-mode JVP; C v is
+    the bias minus gravity.
     """
-    path = lambda t: mass_matrix(m, integrate_pos(m, qpos, qvel, t)) @ qvel
-    _, mdot_v = jax.jvp(path, (jnp.zeros((), qpos.dtype),), (jnp.ones((), qpos.dtype),))
-    c_v = bias_forces(m, qpos, qvel) - gravity_forces(m, qpos)
-    return mdot_v - c_v
+    _, mdot_v, d = _momentum_and_rate(m, qpos, qvel)
+    return mdot_v - _bias(m, d, qvel) + _bias(m, d, jnp.zeros_like(qvel))
 
 
 def momentum_terms(
@@ -114,26 +129,58 @@ def momentum_terms(
 ) -> tuple[Float[Array, "nv"], Float[Array, "nv"], Float[Array, "4 nv"]]:
     """Inputs of the generalized-momentum contact observer: (p, tau_bar, J_z).
 
-    p = M v (nv,); tau_bar = S^T tau + C^T v - g (nv,), so that dp/dt = tau_bar + J^T f with f the
-    ground-reaction forces on the feet (convention of the module docstring); J_z (4, nv) = world-z
-    rows of the foot point Jacobians (m per unit of qvel), feet in `robot.foot_names` order.
+    p = M v (nv,); tau_bar = S^T tau + C^T v - g = S^T tau + Mdot v - h (nv,), so that
+    dp/dt = tau_bar + J^T f with f the ground-reaction forces on the feet (convention of the module
+    docstring); J_z (4, nv) = world-z rows of the foot point Jacobians (m per unit of qvel), feet in
+    `robot.foot_names` order. `tau` are joint torques in `robot.joint_names` order (N m).
     `m` defaults to `robot.mjx_model`.
     """
     m = robot.mjx_model if m is None else m
-    p = mass_matrix(m, qpos) @ qvel
+    p, mdot_v, d = _momentum_and_rate(m, qpos, qvel)
     s_tau = jnp.zeros(m.nv, tau.dtype).at[robot.dof_adr].add(tau)
-    tau_bar = s_tau + coriolis_transpose_v(m, qpos, qvel) - gravity_forces(m, qpos)
-    j_z = foot_jacobians_world(robot, qpos, m)[:, 2, :]
-    return p, tau_bar, j_z
+    tau_bar = s_tau + mdot_v - _bias(m, d, qvel)
+    return p, tau_bar, _foot_jac_world(robot, m, d)[:, 2, :]
 
 
-def p_world_foot(robot: Robot, qpos: Float[Array, "nq"], m: mjx.Model | None = None) -> Float[Array, "4 3"]:
-    """Foot site positions in the world frame (4, 3), m."""
+class LegKinematics(eqx.Module):
+    """Foot kinematics of one state, feet in `robot.foot_names` order, joints in `robot.joint_names`
+    order. Base-frame quantities are relative to the base body origin, in base axes."""
+
+    p_world_foot: Float[Array, "4 3"]  # m
+    p_base_foot: Float[Array, "4 3"]  # m
+    v_base_foot: Float[Array, "4 3"]  # m/s, from joint motion only: J_base_foot qdot
+    J_base_foot: Float[Array, "4 3 nu"]  # d p_base_foot / d q_joints, m/rad
+    J_world_foot: Float[Array, "4 3 nv"]  # v_world_foot = J_world_foot qvel (as mj_jacSite)
+
+
+def leg_kinematics(
+    robot: Robot, qpos: Float[Array, "nq"], qvel: Float[Array, "nv"], m: mjx.Model | None = None
+) -> LegKinematics:
+    """All foot kinematics from one kinematics pass (what leg odometry and the simulator's sensors use).
+
+    v_base_foot is the v_foot of leg odometry (v_base = -omega x p_base_foot - v_base_foot per stance
+    foot). For a spined robot the rear feet's base-frame quantities include the spine joint (one of
+    the actuated joints). `m` defaults to `robot.mjx_model`.
+    """
     m = robot.mjx_model if m is None else m
-    return _position_data(m, qpos).site_xpos[robot.foot_site_ids]
+    d = _position_data(m, qpos)
+    b = robot.base_body_id
+    R_world_base = d.xmat[b]
+    p_world_foot = d.site_xpos[robot.foot_site_ids]
+    J_world_foot = _foot_jac_world(robot, m, d)
+    # The base does not move with the joints, so only the rotation into base axes remains.
+    J_base_foot = jnp.einsum("ji,fjk->fik", R_world_base, J_world_foot[:, :, robot.dof_adr])
+    return LegKinematics(
+        p_world_foot=p_world_foot,
+        p_base_foot=(p_world_foot - d.xpos[b]) @ R_world_base,
+        v_base_foot=J_base_foot @ qvel[robot.dof_adr],
+        J_base_foot=J_base_foot,
+        J_world_foot=J_world_foot,
+    )
 
 
 def _foot_jac_world(robot: Robot, m: mjx.Model, d: mjx.Data) -> Array:
+    """(4, 3, nv) world-frame point Jacobians of the foot sites at d's configuration."""
     sites = robot.foot_site_ids
     body = jnp.asarray(np.asarray(m.site_bodyid)[sites])
     jacp = jax.vmap(lambda x, b: mjx.jac(m, d, x, b)[0])(d.site_xpos[sites], body)
@@ -142,41 +189,29 @@ def _foot_jac_world(robot: Robot, m: mjx.Model, d: mjx.Data) -> Array:
 
 def p_base_foot(robot: Robot, qpos: Float[Array, "nq"], m: mjx.Model | None = None) -> Float[Array, "4 3"]:
     """Foot site positions relative to the base body origin, in base axes (4, 3), m."""
-    m = robot.mjx_model if m is None else m
-    d = _position_data(m, qpos)
-    b = robot.base_body_id
-    return (d.site_xpos[robot.foot_site_ids] - d.xpos[b]) @ d.xmat[b]
-
-
-def foot_jacobians_world(
-    robot: Robot, qpos: Float[Array, "nq"], m: mjx.Model | None = None
-) -> Float[Array, "4 3 nv"]:
-    """World-frame point Jacobians of the foot sites (4, 3, nv): v_world_foot = J qvel (m/s).
-
-    Columns follow qvel's convention (free-joint angular columns act on the base-frame rate), as
-    MuJoCo's `mj_jacSite`."""
-    m = robot.mjx_model if m is None else m
-    return _foot_jac_world(robot, m, _position_data(m, qpos))
-
-
-def foot_jacobians_base(
-    robot: Robot, qpos: Float[Array, "nq"], m: mjx.Model | None = None
-) -> Float[Array, "4 3 nu"]:
-    """d p_base_foot / d q_joints (4, 3, nu): base-frame foot Jacobians w.r.t. the actuated joints
-    (robot.joint_names order; rad -> m). Rear feet of a spined robot have a nonzero spine column."""
-    m = robot.mjx_model if m is None else m
-    d = _position_data(m, qpos)
-    jac_world = _foot_jac_world(robot, m, d)[:, :, robot.dof_adr]
-    # The base does not move with the joints, so only the rotation into base axes remains.
-    return jnp.einsum("ji,fjk->fik", d.xmat[robot.base_body_id], jac_world)
+    return leg_kinematics(robot, qpos, jnp.zeros(robot.nv, qpos.dtype), m).p_base_foot
 
 
 def v_base_foot(
     robot: Robot, qpos: Float[Array, "nq"], qvel: Float[Array, "nv"], m: mjx.Model | None = None
 ) -> Float[Array, "4 3"]:
-    """Foot velocity relative to the base from joint motion only, J_base_foot qdot (4, 3), m/s in
-    base axes: the v_foot of leg odometry, v_base = -omega x p_base_foot - v_base_foot per stance foot."""
-    return foot_jacobians_base(robot, qpos, m) @ qvel[robot.dof_adr]
+    """Foot velocity relative to the base from joint motion only, J_base_foot qdot (4, 3), m/s."""
+    return leg_kinematics(robot, qpos, qvel, m).v_base_foot
+
+
+def foot_jacobians_base(
+    robot: Robot, qpos: Float[Array, "nq"], m: mjx.Model | None = None
+) -> Float[Array, "4 3 nu"]:
+    """d p_base_foot / d q_joints (4, 3, nu), w.r.t. the actuated joints (m/rad)."""
+    return leg_kinematics(robot, qpos, jnp.zeros(robot.nv, qpos.dtype), m).J_base_foot
+
+
+def foot_jacobians_world(
+    robot: Robot, qpos: Float[Array, "nq"], m: mjx.Model | None = None
+) -> Float[Array, "4 3 nv"]:
+    """World-frame point Jacobians of the foot sites (4, 3, nv), as MuJoCo's `mj_jacSite`: columns
+    follow qvel's convention (free-joint angular columns act on the base-frame rate)."""
+    return leg_kinematics(robot, qpos, jnp.zeros(robot.nv, qpos.dtype), m).J_world_foot
 
 
 def _quat_mul(a: Array, b: Array) -> Array:
