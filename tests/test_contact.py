@@ -132,6 +132,49 @@ def test_postprocessing_matches_numpy_loop_with_hysteresis_and_clipping():
     assert not contacts[-1] and contacts[-90]
 
 
+def test_mixed_step_solves_its_implicit_equations_on_random_multi_foot_inputs():
+    """After one mixed step, in float64: r + h k1(r) + dt J_z^T df = s0 and df = dt b^2 P k2(r), with
+    r = p - p_hat_new, df = f_new - f_old, s0 = p - p_hat_old - dt (tau_bar + J_z^T f_old)."""
+    rng = np.random.default_rng(7)
+    n, F, nv = 64, 4, 18
+    J = rng.normal(size=(n, F, nv)) * 0.3
+    J[:, :, 2] = 1.0  # every foot moves with the base height
+    scale = 10.0 ** rng.uniform(-5, 1, size=(n, 1))
+    p_hat, tau = rng.normal(size=(n, nv)), rng.normal(size=(n, nv)) * 20
+    f_old = rng.uniform(-10, 60, size=(n, F))
+    b, dt = rng.uniform(10, 100, size=n), rng.uniform(1e-3, 5e-3, size=n)
+    s0 = rng.normal(size=(n, nv)) * scale
+    p = p_hat + dt[:, None] * (tau + np.einsum("kfn,kf->kn", J, f_old)) + s0
+    base = ObserverParams.paper(F, "mixed")
+    params = jax.vmap(lambda bw: dataclasses.replace(base, bandwidth=bw))(jnp.asarray(b, jnp.float32))
+    state = _OBS.init(base, jnp.zeros(nv), F)
+    states = jax.tree.map(lambda x: jnp.broadcast_to(x, (n, *x.shape)), state)
+    states = dataclasses.replace(states, p_hat=jnp.asarray(p_hat, jnp.float32), f_hat=jnp.asarray(f_old, jnp.float32))
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    new, est = jax.jit(jax.vmap(_OBS.step))(params, states, f32(p), f32(tau), f32(J), f32(dt))
+    assert bool(est.valid.all())
+    # Residuals from the float32 state, recomputed in float64.
+    p32, p_hat32, f_old32 = (np.asarray(f32(x), np.float64) for x in (p, p_hat, f_old))
+    tau32, J32, dt32 = (np.asarray(f32(x), np.float64) for x in (tau, J, dt))
+    r = p32 - np.asarray(new.p_hat, np.float64)
+    df = np.asarray(new.f_hat, np.float64) - f_old32
+    s0 = p32 - p_hat32 - dt32[:, None] * (tau32 + np.einsum("kfn,kf->kn", J32, f_old32))
+    h = (b * dt32)[:, None]
+    k1 = np.sign(r) * np.sqrt(np.abs(r)) + r
+    k2 = np.tanh(100.0 * r) + k1
+    eq1 = r + h * k1 + dt32[:, None] * np.einsum("kfn,kf->kn", J32, df) - s0
+    gram = np.einsum("kfn,kgn->kfg", J32, J32) + 1e-4 * np.eye(F)
+    P = np.linalg.solve(gram, J32)
+    gain = (dt32 * b**2)[:, None]
+    eq2 = df - gain * np.einsum("kfn,kn->kf", P, k2)
+    # float32 round-off of p and p_hat (|p| ~ 1) bounds how well the equations can be checked: r is
+    # known to dr ~ eps (|p| + |p_hat|), which k2 (slope 100 + 1 + 1/(2 |r|^(1/2))) and b^2 dt amplify.
+    dr = 2.0**-22 * (np.abs(p32) + np.abs(np.asarray(new.p_hat, np.float64)))
+    dk2 = (101.0 + 0.5 / np.sqrt(np.maximum(np.abs(r), dr))) * dr
+    assert np.all(np.abs(eq1) <= 2 * dr + 1e-5 * np.abs(s0).max())
+    assert np.all(np.abs(eq2) <= 2 * gain * np.einsum("kfn,kn->kf", np.abs(P), dk2) + 1e-4 * (1.0 + np.abs(df)))
+
+
 # ---------------------------------------------------------------- floating-base quadruped, MuJoCo C
 
 
