@@ -201,3 +201,63 @@ def test_simulated_log_end_to_end(tmp_path):
     # Leg-inertial odometry on truth contacts: a few percent of the distance, far below dead reckoning.
     assert robot["scores"]["drift"]["3d_pct"] < 30.0
     assert robot["scores"]["trajectory"]["ate"]["rmse"] < 0.1
+
+
+@pytest.fixture(scope="module")
+def standing_log(robot):
+    """MuJoCo C: the robot stands on its floor under joint PD; true foot forces from mj_contactForce."""
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[:] = robot.qpos_home
+    d.qpos[robot.base_qpos_adr + 2] += 0.01
+    kp, kd = 40.0, 1.0
+    rows = {k: [] for k in ("t", "q", "qd", "tau", "gyro", "acc", "quat_wxyz", "gt_pose", "gt_force")}
+    foot_of_geom = {int(g): f for f, g in enumerate(robot.foot_geom_ids)}
+    n_settle, n_log = 250, 150  # 1 s to settle, 0.6 s logged
+    for k in range(n_settle + n_log):
+        q, qd = d.qpos[robot.qpos_adr].copy(), d.qvel[robot.dof_adr].copy()
+        tau = kp * (robot.q_home - q) - kd * qd
+        d.ctrl[:] = tau
+        mujoco.mj_step(m, d)
+        if k < n_settle:
+            continue
+        mujoco.mj_rnePostConstraint(m, d)
+        fz = np.zeros((4, 3))
+        f6 = np.zeros(6)
+        for i in range(d.ncon):
+            c = d.contact[i]
+            foot = foot_of_geom.get(int(c.geom1), foot_of_geom.get(int(c.geom2)))
+            if foot is None:
+                continue
+            mujoco.mj_contactForce(m, d, i, f6)
+            fz[foot] += np.abs(c.frame.reshape(3, 3).T @ f6[:3])
+        base_q = d.qpos[robot.base_qpos_adr + 3 : robot.base_qpos_adr + 7].copy()
+        R = np.zeros(9)
+        mujoco.mju_quat2Mat(R, base_q)
+        rows["t"].append(d.time)
+        rows["q"].append(d.qpos[robot.qpos_adr].copy())
+        rows["qd"].append(d.qvel[robot.dof_adr].copy())
+        rows["tau"].append(tau)
+        rows["gyro"].append(d.qvel[robot.base_dof_adr + 3 : robot.base_dof_adr + 6].copy())
+        rows["acc"].append(R.reshape(3, 3).T @ [0, 0, 9.81])
+        rows["quat_wxyz"].append(base_q)
+        rows["gt_pose"].append(np.concatenate([d.qpos[robot.base_qpos_adr : robot.base_qpos_adr + 3], base_q]))
+        rows["gt_force"].append(fz)
+    log = {k: np.array(v) for k, v in rows.items()}
+    log["robot"], log["joint_names"] = np.array("go2"), np.array(robot.joint_names)
+    return log
+
+
+def test_observer_forces_match_mujoco_contact_forces(robot, standing_log):
+    """Plain observer (paper gains) on a standing robot: per-foot vertical force vs MuJoCo C."""
+    log = standing_log
+    true_fz = log["gt_force"][:, :, 2]
+    assert (true_fz[-1] > 10).all() and abs(true_fz[-1].sum() - robot.mass * 9.81) < 0.05 * robot.mass * 9.81
+    inputs, config = pipeline.inputs_from_log(robot, log, "observer")
+    out = pipeline.estimate_fleet(robot, config, pipeline.PipelineParams.default(mode="plain"), inputs)
+    fz = np.asarray(out.force_z_filtered[0])
+    late = slice(75, None)  # after the observer (b = 30 rad/s) and the smoothing converged
+    np.testing.assert_allclose(fz[late], true_fz[late], atol=0.1 * true_fz[-1].max())
+    assert np.asarray(out.contact[0, late]).all()
+    assert np.isfinite(np.asarray(out.p_world_base)).all()
+    assert np.abs(np.asarray(out.p_world_base[0]) - log["gt_pose"][:, :3]).max() < 5e-3
