@@ -198,6 +198,7 @@ class GaitParams(eqx.Module):
     stop_go_period: Float[Array, ""]  # s; the command is zeroed for (1 - stop_go_duty) of it
     stop_go_duty: Float[Array, ""]  # 1 = never stop
     weight_ff: Float[Array, ""]  # share of the body weight fed forward through the stance legs
+    time_offset: Float[Array, ""]  # s added to `t` for the attitude and stop-and-go patterns
 
     @classmethod
     def calm(cls, gait: Gait, **overrides) -> "GaitParams":
@@ -225,6 +226,7 @@ class GaitParams(eqx.Module):
             stop_go_period=4.0,
             stop_go_duty=1.0,
             weight_ff=1.0,
+            time_offset=0.0,
         )
         values.update(overrides)
         return cls(**{k: _f32(v) for k, v in values.items()})
@@ -353,6 +355,7 @@ def gait_step(
     v_level = jnp.array([cy * qvel[0] + sy * qvel[1], -sy * qvel[0] + cy * qvel[1]])
 
     # Command: limits, stop-and-go, rate limits.
+    t = t + params.time_offset  # desynchronizes the patterns of a fleet
     go = jnp.mod(t, params.stop_go_period) < params.stop_go_duty * params.stop_go_period
     target = jnp.clip(command, -params.v_max, params.v_max) * go
     step = params.acc_max * dt

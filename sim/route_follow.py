@@ -28,7 +28,7 @@ class RouteParams(eqx.Module):
 
 class RouteState(eqx.Module):
     target: Int[Array, ""]  # index of the waypoint being approached
-    laps: Int[Array, ""]  # completed passes through waypoint 0
+    laps: Int[Array, ""]  # times waypoint 0 has been reached (starting on it counts once)
 
 
 def route_init(waypoints: Float[Array, "K 2"], p_world_base: Float[Array, " 2"]) -> RouteState:

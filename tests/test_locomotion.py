@@ -12,6 +12,7 @@ from mujoco import mjx
 
 from jaxquad.robots import load
 from jaxquad.sim.locomotion import Gait, GaitParams, gait_init, gait_step
+from jaxquad.sim.route_follow import RouteParams, route_init, route_step
 
 ROBOTS = ("go2", "badger")
 _step = jax.jit(gait_step)
@@ -112,6 +113,45 @@ def test_badger_spine_follows_the_trot():
     late = slice(len(ref) // 2, None)
     assert np.corrcoef(q_spine[late], ref[late])[0, 1] > 0.7
     assert np.ptp(q_spine[late]) > 0.04  # calm amplitude 0.05 rad: about a full swing
+
+
+def test_walking_robot_follows_a_loop():
+    robot, gait = _robot_gait("go2")
+    model, params, route = robot.mj_model, GaitParams.calm(gait), RouteParams.default(v_max=0.4)
+    wp = jnp.array([[0.0, 0.0], [3.0, 0.0], [3.0, 2.0], [0.0, 2.0]])
+    data = mujoco.MjData(model)
+    data.qpos[:] = robot.qpos_home
+    state, rstate = gait_init(gait, params), route_init(wp, jnp.zeros(2))
+    dt = model.opt.timestep
+
+    @jax.jit
+    def control(state, rstate, qpos, qvel, t):
+        w, x, y, z = qpos[3:7]
+        yaw = jnp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+        cmd, rstate, _ = route_step(route, rstate, wp, jnp.stack([qpos[0], qpos[1], yaw]))
+        u, state = gait_step(gait, params, state, qpos, qvel, cmd, t, jnp.float32(dt))
+        return u, state, rstate
+
+    xy, targets = [], []
+    for i in range(int(20.0 / dt)):
+        u, state, rstate = control(state, rstate, jnp.asarray(data.qpos, jnp.float32),
+                                   jnp.asarray(data.qvel, jnp.float32), jnp.float32(i * dt))
+        data.ctrl[:] = np.asarray(u)
+        mujoco.mj_step(model, data)
+        xy.append(data.qpos[:2].copy())
+        targets.append(int(rstate.target))
+    xy = np.array(xy)
+    assert {1, 2, 3} <= set(targets)  # went round three corners (8 m at 0.4 m/s would close the loop)
+    assert np.linalg.norm(xy - np.array([3.0, 2.0]), axis=1).min() < 0.3
+    late = xy[len(xy) // 2 :: 25]
+    edges = [(wp[i], wp[(i + 1) % 4]) for i in range(4)]
+    dist = [min(_segment_distance(p, np.asarray(a), np.asarray(b)) for a, b in edges) for p in late]
+    assert max(dist) < 0.3 and np.median(dist) < 0.1
+
+
+def _segment_distance(p, a, b):
+    u = np.clip(np.dot(p - a, b - a) / np.dot(b - a, b - a), 0.0, 1.0)
+    return np.linalg.norm(p - (a + u * (b - a)))
 
 
 @pytest.mark.parametrize("name", ROBOTS)
