@@ -48,7 +48,7 @@ def _tune(log_path: Path, params_path: Path, grid_size: int) -> dict:
     log = load_log(log_path)
     robot = load(str(np.asarray(log["robot"])))
     inputs, truth, t = T.observer_inputs(robot, log)
-    params, summary = T.tune("grid", inputs, truth, t, mode="mixed", holdout=0.0, spec=T.GridSpec.default(grid_size))
+    params, summary = T.tune_fleet("grid", inputs, truth, t, mode="mixed", holdout=0.0, spec=T.GridSpec.default(grid_size))
     T.save_params(params_path, params, header=f"grid-tuned on {log_path}")
     return summary
 

@@ -16,6 +16,9 @@ stopped run never leaves a half-written report):
   trajectories.png                   xy paths per robot against ground truth, over the map
   contacts.png                       one robot, a few seconds, every foot: stance and forces
   scan_frame.png                     one depth frame with both bands; the two scans on the map
+Scans: the 5 px band of the paper's simulation, ranges 0-10 m, roll and pitch from the attitude of
+the mixed-contact run (jaxquad.estimate.scans); each is placed on the map with the ground-truth
+camera pose and scored by the share of rays ending near an occupied cell.
 """
 
 from __future__ import annotations
@@ -83,9 +86,9 @@ def scan_map_hits(points_world: np.ndarray, occ, tolerance: float = HIT_TOLERANC
 
 
 def _frame_samples(t: np.ndarray, depth_t: np.ndarray) -> np.ndarray:
-    """Index of the log sample nearest each depth frame time."""
-    k = np.clip(np.searchsorted(t, depth_t), 1, t.size - 1)
-    return np.where(np.abs(t[k - 1] - depth_t) <= np.abs(t[k] - depth_t), k - 1, k)
+    """Index of the latest log sample at or before each depth frame (the sample whose attitude
+    jaxquad.estimate.scans uses for that frame)."""
+    return np.clip(np.searchsorted(t, depth_t, side="right") - 1, 0, t.size - 1)
 
 
 def _camera_pose_2d(gt_pose: np.ndarray, T_base_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -100,34 +103,15 @@ def _camera_pose_2d(gt_pose: np.ndarray, T_base_camera: np.ndarray) -> tuple[np.
     return xy, np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
-def fleet_scans(log: dict, band_height: int = BAND_HEIGHT) -> dict[str, np.ndarray]:
-    """Baseline and stabilized scans of every depth frame of a fleet log (roll and pitch from the
-    log's IMU attitude at the frame): {"baseline"|"stabilized": ranges (N, F, W)}, "bearings" (W,),
-    "frame_sample" (F,) log index of each frame."""
-    import jax
-    import jax.numpy as jnp
-
-    from jaxquad.kernels import baseline_scan, stabilized_scan
-    from jaxquad.report import roll_pitch
-
-    depth = np.asarray(log["depth"])
-    n, n_frames, height, width = depth.shape
-    K = np.asarray(log["K"], np.float64)
-    intr = (K[0, 0], K[1, 1], K[0, 2], K[1, 2])
-    k = _frame_samples(np.asarray(log["t"], np.float64), np.asarray(log["depth_t"], np.float64))
-    roll, pitch = roll_pitch(np.asarray(log["quat_wxyz"])[:, k])
-
-    def both(d, r, p):
-        s = stabilized_scan(d, intr, r, p, band_height, RANGE_MIN, RANGE_MAX)
-        b = baseline_scan(d, intr, band_height, RANGE_MIN, RANGE_MAX)
-        return s.ranges, b.ranges, s.bearings
-
-    fn = jax.jit(jax.vmap(both))
-    flat = lambda a: jnp.asarray(a.reshape((n * n_frames,) + a.shape[2:]), jnp.float32)  # noqa: E731
-    s, b, bearings = jax.device_get(fn(flat(depth), flat(roll), flat(pitch)))
-    shape = (n, n_frames, width)
-    return {"stabilized": s.reshape(shape), "baseline": b.reshape(shape), "bearings": bearings[0],
-            "frame_sample": k, "roll": roll, "pitch": pitch}  # fmt: skip
+def load_scans(folder: Path, n: int) -> dict[str, np.ndarray]:
+    """The scans `run_estimate` wrote for robots 0..n-1 (`robot_<i>_scans.npz`), stacked:
+    "stabilized" and "baseline" ranges (N, F, W) m, "roll" and "pitch" (N, F) rad, "bearings" (W,)."""
+    files = [np.load(folder / f"robot_{i:03d}_scans.npz") for i in range(n)]
+    out = {k: np.stack([f[k] for f in files]) for k in ("roll", "pitch")}
+    out["stabilized"] = np.stack([f["ranges_stabilized"] for f in files])
+    out["baseline"] = np.stack([f["ranges_baseline"] for f in files])
+    out["bearings"] = files[0]["bearings"]
+    return out
 
 
 def score_scans(log: dict, scans: dict, maps: list) -> dict:
@@ -135,7 +119,7 @@ def score_scans(log: dict, scans: dict, maps: list) -> dict:
     % of valid rays ending in a cell within HIT_TOLERANCE of an occupied cell (`scan_map_hits`),
     % of rays with no reading,
     over the frames where each robot is valid."""
-    k = scans["frame_sample"]
+    k = _frame_samples(np.asarray(log["t"], np.float64), np.asarray(log["depth_t"], np.float64))
     gt = np.asarray(log["gt_pose"], np.float64)[:, k]  # (N, F, 7)
     xy, yaw = _camera_pose_2d(gt, np.asarray(log["T_base_camera"], np.float64))
     valid = np.asarray(log["valid"], bool)[:, k]
@@ -284,18 +268,19 @@ def run_demo(
             bar = tqdm(total=robots, desc=f"estimate ({source} contacts)", unit="robot", disable=not progress)
             try:
                 summaries[source] = run_estimate(log_path, tmp / f"estimate_{source}", source,
-                                                 progress=lambda done, total: bar.update(done - bar.n))  # fmt: skip
+                                                 progress=lambda done, total: bar.update(done - bar.n),
+                                                 band_height=BAND_HEIGHT, range_min=RANGE_MIN, range_max=RANGE_MAX)  # fmt: skip
             finally:
                 bar.close()
             wall[f"estimate_{source}"] = time.perf_counter() - t0
 
-        # 3. scans from every depth frame, scored against the ground-truth map
+        # 3. the scans of every depth frame (sliced by run_estimate with the mixed run's attitude),
+        # scored against the ground-truth map
         t0 = time.perf_counter()
         log = load_log(log_path)
         maps = [load_map(p) for p in sorted((tmp / "sim").glob("map_*.yaml"))]
-        with tqdm(total=2, desc="scans", unit="step", disable=not progress) as bar:
-            scans = fleet_scans(log)
-            bar.update()
+        with tqdm(total=1, desc="scans vs map", unit="fleet", disable=not progress) as bar:
+            scans = load_scans(tmp / "estimate_mixed", robots)
             scan_scores = score_scans(log, scans, maps)
             bar.update()
         wall["scans"] = time.perf_counter() - t0
@@ -371,7 +356,7 @@ def _pictures(folder: Path, log: dict, summaries: dict, scans: dict, maps: list,
     )  # fmt: skip
 
     # Scan frame: the valid frame of robot i where the two bands disagree most with the map.
-    k = scans["frame_sample"]
+    k = _frame_samples(t, np.asarray(log["depth_t"], np.float64))
     ok = np.asarray(log["valid"], bool)[i, k]
     s, b = scans["stabilized"][i], scans["baseline"][i]
     diff = np.sum(np.where(np.isfinite(s) & np.isfinite(b), np.abs(s - b), np.isfinite(s) ^ np.isfinite(b)), axis=1)

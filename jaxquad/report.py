@@ -48,14 +48,6 @@ def _save(fig, path: str | os.PathLike) -> Path:
     return path
 
 
-def roll_pitch(quat_wxyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """ZYX Euler roll and pitch (rad) of world-from-base quaternions (..., 4), w first."""
-    w, x, y, z = np.moveaxis(np.asarray(quat_wxyz, np.float64), -1, 0)
-    roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
-    return roll, pitch
-
-
 def band_rows(K: np.ndarray, roll: float, pitch: float, band_height: int, width: int) -> np.ndarray:
     """(band_height, width) pixel rows the stabilized scan samples (facts.md Sec. 3; roll = pitch = 0
     gives the baseline band): v = round(o + (u - c_x) tan(-roll) - f_y tan(pitch)), o = floor(c_y -

@@ -67,18 +67,6 @@ def test_band_rows_are_the_rows_the_kernel_samples():
         np.testing.assert_allclose(z, 1.0 + 0.01 * rows.min(0), rtol=1e-5)
 
 
-def test_roll_pitch_closed_form():
-    rng = np.random.default_rng(0)
-    yaw, pitch, roll = rng.uniform(-np.pi, np.pi, 20), rng.uniform(-1.4, 1.4, 20), rng.uniform(-3, 3, 20)
-    # q = q_z(yaw) q_y(pitch) q_x(roll), written out.
-    cy, sy, cp, sp, cr, sr = (f(a / 2) for a in (yaw, pitch, roll) for f in (np.cos, np.sin))
-    q = np.stack([cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
-                  cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy], -1)  # fmt: skip
-    r, p = report.roll_pitch(q)
-    np.testing.assert_allclose(p, pitch, atol=1e-9)
-    np.testing.assert_allclose(np.angle(np.exp(1j * (r - roll))), 0.0, atol=1e-9)
-
-
 def test_camera_pose_and_scan_points_closed_form():
     yaw = 0.7
     gt = np.array([1.0, 2.0, 0.3, np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
@@ -93,10 +81,10 @@ def test_camera_pose_and_scan_points_closed_form():
     assert pts.shape == (2, 2)
 
 
-def test_frame_samples_nearest():
+def test_frame_samples_latest_at_or_before():
     t = np.arange(1, 101) * 0.004
-    depth_t = np.array([0.004, 0.0319, 0.032, 0.1999, 0.4, 0.5])
-    expected = [int(np.argmin(np.abs(t - x))) for x in depth_t]
+    depth_t = np.array([0.001, 0.004, 0.0319, 0.032, 0.1999, 0.4, 0.5])
+    expected = [max(j for j in range(t.size) if t[j] <= x) if x >= t[0] else 0 for x in depth_t]
     np.testing.assert_array_equal(demo._frame_samples(t, depth_t), expected)
 
 
