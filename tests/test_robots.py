@@ -238,3 +238,26 @@ def test_bad_inputs(tmp_path):
     with pytest.raises(ValueError, match="cannot parse robot file") as e:
         load(broken)
     assert "\n" not in str(e.value)
+
+
+@pytest.mark.slow
+def test_mjx_sensors_match_mujoco_when_standing():
+    """MJX computes the models' contact sensors (found, contact-frame force), gyro and accelerometer
+    as MuJoCo C does, at a settled stand with all four feet on the floor."""
+    import jax
+    from mujoco import mjx
+
+    r = load("go2")
+    m = r.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[:] = r.qpos_home
+    for _ in range(100):
+        d.ctrl[:] = 50.0 * (r.q_home - d.qpos[r.qpos_adr]) - 0.5 * d.qvel[r.dof_adr]
+        mujoco.mj_step(m, d)
+    mujoco.mj_forward(m, d)
+    dx = jax.jit(mjx.forward)(r.mjx_model, mjx.put_data(m, d))
+    found = np.asarray(dx.sensordata)[r.foot_contact_sensor_adr]
+    np.testing.assert_array_equal(found, d.sensordata[r.foot_contact_sensor_adr])
+    assert np.all(found == 1)
+    # Solver iterations differ slightly between MJX and C (float32, one Newton iteration).
+    np.testing.assert_allclose(np.asarray(dx.sensordata), d.sensordata, rtol=0.05, atol=0.5)
