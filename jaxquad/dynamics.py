@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from jaxtyping import Array, Float
-from mujoco import mjx
+from jaxquad._mjx import mjx
 
 from jaxquad.robots import Robot
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-from mujoco import mjx
+from jaxquad._mjx import mjx
 
 _XML_DIR = Path(__file__).resolve().parent / "xmls"
 BUILTIN_ROBOTS = ("go2", "badger")
