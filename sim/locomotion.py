@@ -66,7 +66,11 @@ class Gait(eqx.Module):
         spine_joint_name: str | None = None,
         home_key: str = "home",
     ) -> "Gait":
-        """Read the leg chains (abduction, thigh, knee joints; foot sites FL FR RL RR)."""
+        """Read the leg chains (abduction, thigh, knee joints; foot sites FL FR RL RR).
+
+        The home pose (keyframe `home_key`, else qpos0) fixes the knee branch and the nominal
+        footholds; `tau_limit` comes from the actuators' ctrl/force ranges and gears.
+        """
         if len(leg_joint_names) != 4 or len(foot_site_names) != 4:
             raise ValueError("Gait.from_model: expected 4 legs (FL FR RL RR) of 3 joints and 4 foot sites")
         if model.jnt_type[0] != mujoco.mjtJoint.mjJNT_FREE:
@@ -116,7 +120,8 @@ class Gait(eqx.Module):
             p_spine = data.xanchor[spine_jnt].copy()
             spine_sign = float(np.sign(data.xaxis[spine_jnt, 1]))
 
-        q_home_full = model.key(home_key).qpos if home_key else model.qpos0
+        key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, home_key)
+        q_home_full = model.key_qpos[key] if key >= 0 else model.qpos0
         q_home = q_home_full[model.jnt_qposadr[leg_jnt]]
         lo, hi = model.jnt_range[leg_jnt, 0], model.jnt_range[leg_jnt, 1]
         limited = model.jnt_limited[leg_jnt].astype(bool)
@@ -137,11 +142,10 @@ class Gait(eqx.Module):
         p_home = np.asarray(leg_fk(legs, jnp.asarray(q_home, jnp.float32)))
         body_height = -float(np.min(p_home[:, 2])) + radius
 
-        acts = np.arange(model.nu)
         gear = model.actuator_gear[:, 0]
         ctrl_lim = np.where(model.actuator_ctrllimited.astype(bool), np.abs(model.actuator_ctrlrange).max(1), np.inf)
         force_lim = np.where(model.actuator_forcelimited.astype(bool), np.abs(model.actuator_forcerange).max(1), np.inf)
-        tau_limit = np.minimum(ctrl_lim * np.abs(gear), force_lim)[acts]
+        tau_limit = np.minimum(ctrl_lim * np.abs(gear), force_lim)
         return cls(
             legs=legs,
             p_base_foot_home=jnp.asarray(p_home, jnp.float32),
@@ -410,7 +414,7 @@ def gait_step(
     f_world = jnp.array([0.0, 0.0, -1.0]) * (params.weight_ff * gait.mass * _GRAVITY / n_stance)
     f_base = R_world_base.T @ f_world
     f_trunk = jnp.where(on_spine, f_base @ R_spine, f_base) * stance[:, None]
-    jac = jax.vmap(jax.jacfwd(_leg_fk_one, argnums=1))(gait.legs, q)  # (4, 3 xyz, 3 joints)
+    jac = jax.vmap(jax.jacfwd(leg_fk, argnums=1))(gait.legs, q)  # (4, 3 xyz, 3 joints)
     tau_ff = jnp.einsum("lij,li->lj", jac, f_trunk)
 
     tau = jnp.zeros(gait.nu).at[np.asarray(gait.leg_act)].set(tau_pd + tau_ff)
@@ -430,7 +434,3 @@ def gait_step(
         ok=ok,
     )
     return tau, new_state
-
-
-def _leg_fk_one(legs: LegGeometry, q_leg: Float[Array, " 3"]) -> Float[Array, " 3"]:
-    return leg_fk(legs, q_leg)

@@ -221,3 +221,12 @@ def test_mjx_batched_rollout_walks():
         roll, pitch = _roll_pitch(qpos[k, :, 3:7])
         assert np.abs(roll).max() < 35.0 and np.abs(pitch).max() < 35.0
         assert qpos[k, -1, 0] > 0.6  # accelerating from rest at 0.5 m/s^2 (calm) or 3 m/s^2
+
+
+def test_from_model_rejects_bad_structure():
+    robot, _ = _robot_gait("go2")
+    legs = (("FL_hip_joint", "FL_thigh_joint", "FL_calf_joint"),) * 3 + (("RR_hip_joint", "RR_thigh", "x"),)
+    with pytest.raises(ValueError, match="no joint named 'RR_thigh'"):
+        Gait.from_model(robot.mj_model, legs, robot.foot_names)
+    with pytest.raises(ValueError, match="expected 4 legs"):
+        Gait.from_model(robot.mj_model, legs[:2], robot.foot_names)
