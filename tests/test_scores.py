@@ -56,6 +56,9 @@ def test_force_rmse_by_hand():
     # foot 0: errors -3, 4 -> sqrt(12.5); foot 1: 0, 5 -> sqrt(12.5); all: sqrt((9+16+0+25)/4)
     np.testing.assert_allclose(r["rmse_per_foot_n"], [np.sqrt(12.5)] * 2)
     np.testing.assert_allclose(r["rmse_n"], np.sqrt(12.5))
+    # Truth clipped to [0, 15]: foot 0 errors -3, 5 -> sqrt(17); foot 1 unchanged.
+    c = scores.force_rmse(est, true, valid=np.array([1, 1, 0], bool), max_force_n=15.0)
+    np.testing.assert_allclose(c["rmse_per_foot_n"], [np.sqrt(17.0), np.sqrt(12.5)])
 
 
 def test_odometry_drift_by_hand():

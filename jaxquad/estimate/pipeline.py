@@ -78,10 +78,15 @@ class PipelineConfig:
     has_qd: bool = True  # use RobotInputs.qd, else differentiate q
     has_attitude: bool = True  # use RobotInputs.quat_wxyz, else run the attitude filter
     soft_contacts: bool = False  # observer: weight feet by contact_soft instead of 0/1
+    # observer rows: "full" = every generalized coordinate, floating base included (the paper);
+    # "joints" = the actuated joints only, insensitive to errors in the estimated base velocity.
+    observer_rows: str = "full"
 
     def __post_init__(self):
         if self.contacts not in CONTACT_SOURCES:
             raise ValueError(f"contacts must be one of {CONTACT_SOURCES}, got {self.contacts!r}")
+        if self.observer_rows not in ("full", "joints"):
+            raise ValueError(f"observer_rows must be 'full' or 'joints', got {self.observer_rows!r}")
 
 
 class RobotInputs(eqx.Module):
@@ -176,7 +181,8 @@ def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs
     pose0 = Pose(p_world_base=inputs.p0_world_base, q_world_base=quat0)
 
     if observer:
-        obs0 = ContactObserver().init(params.observer, jnp.zeros(robot.nv, inputs.q.dtype), n_feet)
+        rows = np.arange(robot.nv) if config.observer_rows == "full" else np.asarray(robot.dof_adr)
+        obs0 = ContactObserver().init(params.observer, jnp.zeros(rows.size, inputs.q.dtype), n_feet)
     else:
         obs0 = None
     zeros3 = jnp.zeros(3, inputs.gyro.dtype)
@@ -243,6 +249,7 @@ def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs
         qvel = qvel.at[jnp.asarray(robot.dof_adr)].set(qd_use)
         if observer:
             p_mom, tau_bar, J_z = dynamics.momentum_terms(robot, qpos, qvel, jnp.where(tau_ok, tau, 0.0))
+            p_mom, tau_bar, J_z = p_mom[rows], tau_bar[rows], J_z[:, rows]
             obs_prev = jax.tree.map(lambda a: a, c.obs)
             # After a gap the momentum residual is meaningless: restart the estimate at p.
             obs_prev = eqx.tree_at(lambda s: s.p_hat, obs_prev, jnp.where(gap | first, p_mom, obs_prev.p_hat))

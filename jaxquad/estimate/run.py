@@ -80,13 +80,15 @@ def estimate_log(log: dict, contacts: str = "truth", params=None, robot=None):
     return robot, config, jax.tree.map(np.asarray, out)
 
 
-def _scores_one(t, est, log_i: dict, valid) -> dict:
+def _scores_one(t, est, log_i: dict, valid, f_max: float) -> dict:
     res = {}
     if "gt_contact" in log_i:
         res["contacts"] = scores.contact_scores(est["contact"], log_i["gt_contact"], valid)
         res["delays"] = scores.detection_delays(t, est["contact"], log_i["gt_contact"], valid)
     if "gt_force" in log_i and np.any(est["force_z"]):
-        res["force"] = scores.force_rmse(est["force_z_filtered"], np.asarray(log_i["gt_force"])[..., 2], valid)
+        true_fz = np.asarray(log_i["gt_force"])[..., 2]
+        res["force"] = scores.force_rmse(est["force_z_filtered"], true_fz, valid)
+        res["force_clipped"] = scores.force_rmse(est["force_z_filtered"], true_fz, valid, f_max)
     if "gt_pose" in log_i:
         gt = np.asarray(log_i["gt_pose"])
         res["drift"] = scores.odometry_drift(est["p_world_base"], gt[:, :3], valid)
@@ -152,7 +154,7 @@ def run_estimate(
         log_i = {k: (np.asarray(v)[i] if fleet else v) for k, v in log.items()
                  if k.startswith("gt_")}  # fmt: skip
         entry = {"name": name, "flag_counts": {k: int(v.sum()) for k, v in flags.items()},
-                 "fallen": bool(flags["fallen"].any()), "scores": _scores_one(t, est, log_i, valid)}  # fmt: skip
+                 "fallen": bool(flags["fallen"].any()), "scores": _scores_one(t, est, log_i, valid, float(params.observer.f_max))}  # fmt: skip
         summary["robots"].append(entry)
         if progress is not None:
             progress(i + 1, n)

@@ -94,10 +94,15 @@ def detection_delays(t, contact_est, contact_true, valid=None, max_delay_s: floa
     return out
 
 
-def force_rmse(force_z_est, force_z_true, valid=None) -> dict:
-    """RMSE (N) of vertical foot forces (T, F), per foot and over all feet."""
+def force_rmse(force_z_est, force_z_true, valid=None, max_force_n: float | None = None) -> dict:
+    """RMSE (N) of vertical foot forces (T, F), per foot and over all feet.
+
+    With max_force_n the truth is clipped to [0, max_force_n] first, the range an estimate clipped
+    there can reach (impact spikes of a simulator then do not dominate the score)."""
     est = np.asarray(force_z_est, float)
     true = np.asarray(force_z_true, float)
+    if max_force_n is not None:
+        true = np.clip(true, 0.0, max_force_n)
     m = _mask(valid, est.shape[0])
     sq = (est[m] - true[m]) ** 2
     n = sq.shape[0]
