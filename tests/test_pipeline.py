@@ -261,3 +261,30 @@ def test_observer_forces_match_mujoco_contact_forces(robot, standing_log):
     assert np.asarray(out.contact[0, late]).all()
     assert np.isfinite(np.asarray(out.p_world_base)).all()
     assert np.abs(np.asarray(out.p_world_base[0]) - log["gt_pose"][:, :3]).max() < 5e-3
+
+
+@pytest.mark.slow  # compiling the gradient through MJX takes minutes on two shared cores
+def test_gradient_through_soft_contacts(robot, standing_log):
+    """d(final position)/d(observer threshold) with soft contacts: finite and equal to central differences."""
+    import dataclasses
+
+    import equinox as eqx
+    import jax
+
+    log = {k: (v[:40] if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == 150 else v) for k, v in standing_log.items()}
+    inputs, config = pipeline.inputs_from_log(robot, log, "observer")
+    config = dataclasses.replace(config, soft_contacts=True)
+    one = jax.tree.map(lambda a: a[0], inputs)
+    base = pipeline.PipelineParams.default(mode="plain")
+
+    @jax.jit
+    def loss(threshold):
+        params = eqx.tree_at(lambda p: p.observer.threshold_on, base, jnp.full(4, threshold))
+        out = pipeline.estimate_robot(robot, config, params, one)
+        return jnp.sum(out.p_world_base[-1] ** 2) + jnp.sum(out.contact_soft)
+
+    g = jax.grad(loss)(jnp.asarray(30.0))
+    h = 0.5
+    fd = (loss(jnp.asarray(30.0 + h)) - loss(jnp.asarray(30.0 - h))) / (2 * h)
+    assert np.isfinite(float(g)) and abs(float(g)) > 1e-3
+    np.testing.assert_allclose(float(g), float(fd), rtol=0.05)
