@@ -86,7 +86,7 @@ def plot_trajectories(
     n = len(xy_true)
     cols = min(n, 2)
     rows = (n + cols - 1) // cols
-    fig, axes = _figure(rows, cols, figsize=(5.2 * cols, 4.4 * rows), squeeze=False)
+    fig, axes = _figure(rows, cols, figsize=(5.2 * cols, 4.6 * rows), squeeze=False, layout="constrained")
     for i, ax in enumerate(axes.ravel()):
         if i >= n:
             ax.axis("off")
@@ -111,8 +111,9 @@ def plot_trajectories(
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
         ax.set_title(titles[i] if titles else f"robot {i}", fontsize=10)
-        if i == 0:
-            ax.legend(fontsize=7, loc="best", framealpha=0.85)
+    # One legend for every panel, under them, so no path is hidden.
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=len(labels), fontsize=9, frameon=False)
     fig.suptitle("Base trajectory: ground truth and leg-inertial odometry", fontsize=12)
     return _save(fig, path)
 
