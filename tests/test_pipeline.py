@@ -171,7 +171,7 @@ def test_cli_end_to_end_on_a_written_log(robot, fixed_feet_log, tmp_path):
 
     log_path = save_log(tmp_path / "log.npz", fixed_feet_log)
     params = tmp_path / "p.yaml"
-    params.write_text("bandwidth: 40\nmode: plain\nalpha: [0.3, 0.3, 0.1, 0.1]\n")
+    params.write_text("bandwidth: 40\nmode: mixed\nalpha: [0.3, 0.3, 0.1, 0.1]\n")  # same structure: no recompile
     assert main(["estimate", str(log_path), "--out", str(tmp_path / "out"), "--contacts", "truth", "--params", str(params)]) == 0
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     s = summary["robots"][0]["scores"]
