@@ -1,4 +1,4 @@
-"""Rotation helpers shared by the attitude filter and the odometry: quaternions are (w, x, y, z)."""
+"""Rotations shared by the attitude filter and the odometry: quaternions are (w, x, y, z)."""
 
 from __future__ import annotations
 
