@@ -65,7 +65,9 @@ def _broken(edit):
         (lambda g: g.__setitem__("quat_wxyz", g["quat_wxyz"] * 1.1), "not unit"),
         (lambda g: g.__setitem__("t", g["t"][::-1].copy()), "not strictly increasing"),
         (lambda g: g.__setitem__("qd", g["qd"][:, :5]), "'qd' has shape"),
-        (lambda g: g["q"].__setitem__((3, 2), np.nan), "NaN or inf"),
+        (lambda g: g["q"].__setitem__(slice(None), np.nan), "'q' has no finite reading"),
+        (lambda g: g["gt_force"].__setitem__((3, 0, 2), np.inf), "'gt_force' contains NaN or inf"),
+        (lambda g: g["gyro"].__setitem__((4, 1), 90.0), "looks like deg/s"),
         (lambda g: g.pop("K"), "depth needs all of"),
         (lambda g: g.__setitem__("depth", g["depth"] * 1000), "millimetres"),
         (lambda g: g.__setitem__("T_base_camera", 2 * np.eye(4)), "orthonormal"),
@@ -75,6 +77,19 @@ def test_validation_names_the_problem(edit, message):
     with pytest.raises(ValueError, match=message) as info:
         validate_log(_broken(edit))
     assert "\n" not in str(info.value)
+
+
+def test_dropped_sensor_samples_are_kept_for_the_estimator(tmp_path):
+    # A robot drops readings: they stay NaN/inf in the log, and the estimator flags and holds them.
+    log = _log()
+    log["q"][3, 2] = np.nan
+    log["gyro"][7] = np.inf
+    log["acc"][9] = np.nan
+    log["quat_wxyz"][11] = np.nan
+    save_log(tmp_path / "dropped.npz", log)
+    back = load_log(tmp_path / "dropped.npz")
+    assert np.isnan(back["q"][3, 2]) and np.all(np.isinf(back["gyro"][7]))
+    np.testing.assert_array_equal(back["q"][:3], log["q"][:3])
 
 
 def test_fleet_validation_and_save_refuses_bad_log(tmp_path):

@@ -51,6 +51,9 @@ _MAX_GYRO = 35.0  # rad/s (2000 deg/s, the usual full scale); larger values are 
 _MAX_JOINT = 4.0 * np.pi  # rad; larger values are degrees
 _MAX_DEPTH = 100.0  # m; larger values are millimetres
 _UNIT_QUAT_TOL = 1e-3
+# Sensor readings a robot can drop (NaN/inf samples are flagged and held by the estimator);
+# timestamps, ground truth and calibration must be finite.
+_SENSOR_KEYS = frozenset({"q", "qd", "tau", "gyro", "acc", "quat_wxyz", "foot_force", "contact"})
 
 
 def _fail(name: str, message: str) -> None:
@@ -68,8 +71,9 @@ def _check_increasing(name: str, key: str, t: np.ndarray) -> None:
 
 
 def _check_unit_quat(name: str, key: str, q: np.ndarray) -> None:
-    err = np.abs(np.linalg.norm(q, axis=-1) - 1.0)
-    if np.max(err) > _UNIT_QUAT_TOL:
+    norm = np.linalg.norm(q, axis=-1)
+    err = np.abs(norm[np.isfinite(norm)] - 1.0)
+    if np.max(err, initial=0.0) > _UNIT_QUAT_TOL:
         _fail(name, f"'{key}' quaternions are not unit (max |norm - 1| = {np.max(err):.3g})")
 
 
@@ -117,7 +121,10 @@ def validate_log(log: Mapping[str, np.ndarray], name: str = "") -> None:
             _fail(name, f"'{key}' has shape {arr.shape}, expected {want} ({', '.join(map(str, lead + pattern))})")
         if arr.dtype.kind not in "fiub":
             _fail(name, f"'{key}' must be numeric, got dtype {arr.dtype}")
-        if key != "depth" and not np.all(np.isfinite(arr)):
+        if key in _SENSOR_KEYS:
+            if not np.any(np.isfinite(arr)):
+                _fail(name, f"'{key}' has no finite reading")
+        elif key != "depth" and not np.all(np.isfinite(arr)):
             _fail(name, f"'{key}' contains NaN or inf")
     for key in ("K", "T_base_camera"):
         if key in log and np.asarray(log[key]).shape != ((3, 3) if key == "K" else (4, 4)):
@@ -131,15 +138,17 @@ def validate_log(log: Mapping[str, np.ndarray], name: str = "") -> None:
         R = np.asarray(log["T_base_camera"])[:3, :3]
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-4):
             _fail(name, "'T_base_camera' rotation is not orthonormal")
-    gyro = np.asarray(log["gyro"])
-    if np.max(np.abs(gyro)) > _MAX_GYRO:
-        _fail(name, f"'gyro' reaches {np.max(np.abs(gyro)):.0f}: looks like deg/s, expected rad/s")
-    acc_norm = float(np.median(np.linalg.norm(np.asarray(log["acc"]), axis=-1)))
+    gyro_max = float(np.nanmax(np.abs(np.where(np.isfinite(log["gyro"]), log["gyro"], np.nan))))
+    if gyro_max > _MAX_GYRO:
+        _fail(name, f"'gyro' reaches {gyro_max:.0f}: looks like deg/s, expected rad/s")
+    acc_norm = np.linalg.norm(np.asarray(log["acc"]), axis=-1)
+    acc_norm = float(np.median(acc_norm[np.isfinite(acc_norm)]))
     if not 3.0 < acc_norm < 30.0:
         hint = "units of g" if 0.3 < acc_norm <= 3.0 else "gravity removed or wrong units"
         _fail(name, f"'acc' median magnitude {acc_norm:.2f} m/s^2 (expected ~9.81 specific force): {hint}?")
-    if np.max(np.abs(np.asarray(log["q"]))) > _MAX_JOINT:
-        _fail(name, f"'q' reaches {np.max(np.abs(np.asarray(log['q']))):.0f}: looks like degrees, expected rad")
+    q_max = float(np.nanmax(np.abs(np.where(np.isfinite(log["q"]), log["q"], np.nan))))
+    if q_max > _MAX_JOINT:
+        _fail(name, f"'q' reaches {q_max:.0f}: looks like degrees, expected rad")
     if "quat_wxyz" in log:
         _check_unit_quat(name, "quat_wxyz", np.asarray(log["quat_wxyz"]))
     if "gt_pose" in log:
