@@ -25,7 +25,11 @@ then p_hat <- p - r, f_hat <- f_hat + df. For a given df the first equation is e
 solved in closed form with s = s0 - dt J_z^T df (plain: r = s / (1 + 2h); mixed, with u = sgn(r)|r|^(1/2):
 u = 2 s / (h + sqrt(h^2 + 4 (1 + h) |s|)), r = u |u|); df is then found by Newton's method on the
 F equations (linear in plain mode, so one iteration is exact; 6 in mixed mode, which reach float32
-precision in at most 5 over residuals from 1e-6 to 10). Why implicit: k1 has infinite slope at r = 0
+precision in at most 5 over residuals from 1e-6 to 10; the iterations are unrolled). Each Newton
+system is multiplied through by G = J_z J_z^T + lambda I (P = G^-1 J_z), giving the step
+df <- df - delta with (G + dt^2 b^2 J_z D J_z^T) delta = G df - dt b^2 J_z k2(r), D = diag(dk2/ds) > 0:
+a symmetric positive definite F x F system, solved by an unrolled LDL^T factorization without
+pivoting; P itself is never formed. Why implicit: k1 has infinite slope at r = 0
 and the sgn term of k2 moves f_hat by up to dt b^2 per step, so treating k2 explicitly chatters
 (implicit k1, explicit k2 at b = 100 rad/s, dt = 5 ms: a limit cycle from -20 to 40 N around a
 10 N force on one dof); backward Euler in both is stable for every h, critically damped in discrete
@@ -52,6 +56,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
+
+from jaxquad.kernels._small_linalg import spd_solve
 
 _MODES = ("plain", "mixed")
 # Floor on h = b dt: keeps the implicit sqrt and its gradient finite if a sweep reaches b = 0.
@@ -135,18 +141,36 @@ class ContactEstimate(eqx.Module):
     valid: Bool[Array, ""]
 
 
+# Products of these tiny matrices avoid dot ops, which under vmap are separate batched-matmul calls:
+# sums over the few feet are unrolled into elementwise multiply-adds, sums over the dofs are a
+# broadcast product and one reduction; both fuse with the elementwise code around them.
+def _combine(columns: Float[Array, "F n"], weights: Float[Array, "F"]) -> Float[Array, "n"]:
+    """sum_f weights[f] columns[f], unrolled over the static F."""
+    return sum((columns[f] * weights[f] for f in range(1, weights.shape[0])), columns[0] * weights[0])
+
+
+def _rows_dot(a: Float[Array, "m n"], b: Float[Array, "k n"]) -> Float[Array, "m k"]:
+    """a b^T."""
+    return jnp.sum(a[:, None, :] * b[None, :, :], axis=-1)
+
+
 def _residual_and_k2(
     s: Float[Array, "nv"], h: Float[Array, ""], sharpness: Float[Array, ""], mode: str
-) -> tuple[Float[Array, "nv"], Float[Array, "nv"]]:
-    """Solve r + h k1(r) = s elementwise in closed form; return (r, k2(r)), both smooth in s."""
+) -> tuple[Float[Array, "nv"], Float[Array, "nv"], Float[Array, "nv"]]:
+    """Solve r + h k1(r) = s elementwise in closed form; return (r, k2(r), d k2(r(s)) / ds), all
+    smooth in s (the slope is written out, not differentiated, so it shares the root's arithmetic)."""
     if mode == "plain":
         r = s / (1.0 + 2.0 * h)
-        return r, r
+        return r, r, jnp.broadcast_to(1.0 / (1.0 + 2.0 * h), s.shape)
     # u = |r|^(1/2) solves (1 + h) u^2 + h u - |s| = 0; rationalised root, no cancellation at small s,
     # and a sqrt argument >= h^2 keeps the derivative finite (1/h) at s = 0.
-    root = 2.0 * s / (h + jnp.sqrt(h * h + 4.0 * (1.0 + h) * jnp.abs(s)))
+    q = jnp.sqrt(h * h + 4.0 * (1.0 + h) * jnp.abs(s))
+    root = 2.0 * s / (h + q)
     r = root * jnp.abs(root)
-    return r, jnp.tanh(sharpness * r) + root + r
+    tanh = jnp.tanh(sharpness * r)
+    # (1 + h) r + h root = s gives d root/ds = 1 / (h + 2 (1 + h) |root|) = 1 / q, d r/ds = 2 |root| / q.
+    slope = ((sharpness * (1.0 - tanh * tanh) + 1.0) * 2.0 * jnp.abs(root) + 1.0) / q
+    return r, tanh + root + r, slope
 
 
 def _postprocess(
@@ -207,30 +231,27 @@ class ContactObserver(eqx.Module):
 
         h = jnp.maximum(params.bandwidth * dt, _MIN_H)
         gain = dt * params.bandwidth**2
-        gram = J_z @ J_z.T + params.pinv_damping * jnp.eye(n_feet, dtype=J_z.dtype)
-        to_feet = jnp.linalg.solve(gram, J_z)  # P, damped least squares (F, nv)
-        s0 = p - state.p_hat - dt * (tau_bar + J_z.T @ state.f_hat)
+        gram = _rows_dot(J_z, J_z) + params.pinv_damping * jnp.eye(n_feet, dtype=J_z.dtype)
+        s0 = p - state.p_hat - dt * (tau_bar + _combine(J_z, state.f_hat))
 
-        def feedback(s1: Float[Array, "nv"]) -> tuple[Float[Array, "nv"], Float[Array, "nv"]]:
-            return _residual_and_k2(s1, h, params.sharpness, params.mode)
+        def newton(df: Float[Array, "F"]) -> Float[Array, "F"]:
+            # k2(r(s)) acts elementwise: its Jacobian is the diagonal D = diag(slope).
+            _, k2, slope = _residual_and_k2(s0 - dt * _combine(J_z, df), h, params.sharpness, params.mode)
+            # The equation df - gain P k2 and its Jacobian I + gain dt P D J_z^T, both multiplied by
+            # the gram matrix G (P = G^-1 J_z): G df - gain J_z k2 and G + gain dt J_z D J_z^T, which
+            # is symmetric positive definite (D > 0), so P is never formed and no pivoting is needed.
+            # J_z D J_z^T and J_z k2 from one reduction over the dofs.
+            products = _rows_dot(J_z, jnp.concatenate([J_z * slope, k2[None, :]]))
+            equation = _combine(gram, df) - gain * products[:, n_feet]
+            jacobian = gram + gain * dt * products[:, :n_feet]
+            return df - spd_solve(jacobian, equation)
 
-        def newton(_, df: Float[Array, "F"]) -> Float[Array, "F"]:
-            # k2(r(s)) acts elementwise, so one jvp with a ones tangent gives its diagonal slope.
-            s1 = s0 - dt * (J_z.T @ df)
-            k2, slope = jax.jvp(lambda x: feedback(x)[1], (s1,), (jnp.ones_like(s1),))
-            equation = df - gain * (to_feet @ k2)
-            jacobian = jnp.eye(n_feet, dtype=df.dtype) + gain * dt * (to_feet * slope) @ J_z.T
-            return df - jnp.linalg.solve(jacobian, equation)
-
-        # Newton on the force increment of the implicit step: the equation is df - dt b^2 P k2(r(df)),
-        # its Jacobian is I plus a matrix with nonnegative spectrum, and in plain mode it is linear
-        # (one iteration is exact).
+        # Newton on the force increment of the implicit step, unrolled (the count is static); in
+        # plain mode the equation is linear and one iteration is exact.
         df = jnp.zeros_like(state.f_hat)
-        if params.mode == "plain":
-            df = newton(0, df)
-        else:
-            df = jax.lax.fori_loop(0, _NEWTON_ITERS, newton, df)
-        r, _ = feedback(s0 - dt * (J_z.T @ df))
+        for _ in range(1 if params.mode == "plain" else _NEWTON_ITERS):
+            df = newton(df)
+        r, _, _ = _residual_and_k2(s0 - dt * _combine(J_z, df), h, params.sharpness, params.mode)
         f_hat = state.f_hat + df
         p_hat = p - r
 

@@ -7,7 +7,8 @@ weight w_imu the normal equations are 6x6; eliminating v_base leaves a 3x3 syste
     v_base = -omega x p_bar - v_bar                            (weighted means of the stance feet)
     (sum_l w_l S(d_l)^T S(d_l) + w_imu I) omega = sum_l w_l S(d_l)^T e_l + w_imu omega_imu,
 with d_l = p_l - p_bar, e_l = v_l - v_bar, S(d)^T S(d) = |d|^2 I - d d^T and S(d)^T e = e x d.
-The 3x3 matrix is positive definite whenever w_imu > 0, for any number of feet.
+The 3x3 matrix is positive definite whenever w_imu > 0, for any number of feet, and is solved by an
+unrolled LDL^T factorization (no pivoting needed for a positive definite matrix).
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
+
+from jaxquad.kernels._small_linalg import spd_solve
 
 # Floor on the IMU weight: keeps the 3x3 system invertible with fewer than three feet.
 _MIN_IMU_WEIGHT = 1e-6
@@ -71,14 +74,16 @@ def body_twist(
     n_stance = jnp.sum(w)
     has_feet = n_stance > _MIN_TOTAL_WEIGHT
     total = jnp.where(has_feet, n_stance, 1.0)
-    p_bar = w @ p / total
-    v_bar = w @ v / total
+    # Sums over the few feet as broadcast products: under vmap a dot of these tiny shapes would be a
+    # separate batched-matmul call; these fuse with the elementwise code around them.
+    p_bar = jnp.sum(w[:, None] * p, 0) / total
+    v_bar = jnp.sum(w[:, None] * v, 0) / total
     d = p - p_bar
     e = v - v_bar
     eye = jnp.eye(3, dtype=p.dtype)
-    lhs = jnp.einsum("f,fij->ij", w, jnp.sum(d * d, -1)[:, None, None] * eye - d[:, :, None] * d[:, None, :])
-    rhs = w @ jnp.cross(e, d) + w_imu * omega_meas
-    omega = jnp.linalg.solve(lhs + w_imu * eye, rhs)
+    lhs = jnp.sum(w[:, None, None] * (jnp.sum(d * d, -1)[:, None, None] * eye - d[:, :, None] * d[:, None, :]), 0)
+    rhs = jnp.sum(w[:, None] * jnp.cross(e, d), 0) + w_imu * omega_meas
+    omega = spd_solve(lhs + w_imu * eye, rhs)
     v_base = jnp.where(has_feet, -jnp.cross(omega, p_bar) - v_bar, 0.0)
     return Twist(
         v_base=jnp.where(finite, v_base, 0.0),
