@@ -19,8 +19,8 @@ def spd_solve(A: Float[Array, "n n"], b: Float[Array, "n"]) -> Float[Array, "n"]
 
     Only the lower triangle of A is read. No pivoting is needed: for an SPD matrix every pivot d_j is
     a Schur complement's diagonal entry, bounded below by A's smallest eigenvalue, and the
-    factorization is backward stable in that order (as Cholesky is). A matrix that is not positive
-    definite gives a pivot <= 0 and an inf/NaN solution, never a silently wrong finite one.
+    factorization is backward stable in that order (as Cholesky is). A singular leading block gives a
+    zero pivot and a non-finite solution; callers pass matrices that are SPD by construction.
     Differentiable (plain arithmetic, no square root); gradients are finite wherever A is SPD.
     """
     n = A.shape[-1]
