@@ -148,6 +148,20 @@ def test_stabilized_matches_reference_loop_pixel_for_pixel(seed, height, width, 
         np.testing.assert_allclose(scan.bearings, np.arctan2(-(np.arange(width) - cx), fx), rtol=1e-6, atol=1e-7)
 
 
+@pytest.mark.parametrize("cy", [2.0, 23.5, 44.0, -20.0, 70.0])
+def test_baseline_matches_reference_loop_when_the_band_overhangs_the_image(cy):
+    # The baseline reads its band as one slice moved onto the image: only band rows on the image count.
+    rng = np.random.default_rng(5)
+    depth = rng.uniform(0.0, 10.0, (48, 64)).astype(np.float32)
+    depth[rng.uniform(size=depth.shape) < 0.1] = np.nan
+    intrinsics = (40.0, 40.0, 31.5, cy)
+    scan = _baseline(jnp.asarray(depth), intrinsics, 12)
+    ref = _reference_stabilized(depth, *intrinsics, 0.0, 0.0, 12, 0.2, 8.0)
+    np.testing.assert_allclose(scan.ranges, ref, rtol=1e-6)
+    if cy in (-20.0, 70.0):
+        assert np.all(np.isinf(scan.ranges))
+
+
 def test_bearing_sign_left_is_positive():
     # A wall patch only in the left half of the image must appear at positive bearings.
     depth = np.zeros((HEIGHT, WIDTH), np.float32)
