@@ -18,10 +18,13 @@ drops below half its stance height, tilts past 60 deg, or whose state turns non-
 `fallen` and frozen (its state no longer advances) while the others go on. World boxes are not in
 the physics model (see `jaxquad.sim.worlds`); a base entering a box footprint is flagged too.
 
-Ground-truth contact forces are the constraint solver's contact forces (`gt_force`, world frame,
-force of the floor on each foot). They equal the forces that moved the robot only when the solver
-converges: with few solver iterations (the built-in models use 1) single steps show impact spikes
-and their time average exceeds the weight.
+Ground truth of the feet: `gt_force` (T, 4, 3) is the force of the floor (every contact of the
+foot geom) on each foot, world frame, N: the constraint solver's contact forces, which are the
+forces that moved the robot because the built-in models let the solver converge (see their
+`<option>`; a one-iteration solver reports forces inconsistent with the motion). `gt_contact`
+(T, 4) is load-bearing contact: the foot's total normal force exceeds `GT_CONTACT_MIN_FORCE`
+(1 N). Geometric touch (penetration of the foot sphere) outlasts it by a few samples at lift-off,
+when the soft contact is still compressed but no longer pushes.
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ from .routes import plan_loop
 from .worlds import World, make_world
 
 _MAX_TILT_COS = 0.5  # cos(60 deg)
+GT_CONTACT_MIN_FORCE = 1.0  # N: normal force above which a foot counts as in contact (0.7% of go2's weight)
 # MuJoCo cameras look along -z with +y up; the optical frame looks along +z with +y down.
 _R_MJCAM_OPTICAL = np.diag([1.0, -1.0, -1.0])
 
@@ -246,7 +250,6 @@ def _make_functions(fleet: Fleet, gyro_adr: int, acc_adr: int):
     dt = jnp.float32(fleet.dt)
     qa, da = robot.base_qpos_adr, robot.base_dof_adr
     qpos_adr, dof_adr = np.asarray(robot.qpos_adr), np.asarray(robot.dof_adr)
-    contact_adr = np.asarray(robot.foot_contact_sensor_adr)
     foot_geoms = jnp.asarray(robot.foot_geom_ids)
     min_height = 0.5 * float(gait.body_height)
     rays = jnp.asarray(fleet.rays)
@@ -305,12 +308,14 @@ def _make_functions(fleet: Fleet, gyro_adr: int, acc_adr: int):
         )
         q, qd = S.encoders(setup.noise, k_enc, d.qpos[qpos_adr], d.qvel[dof_adr])
         tau = S.joint_torque(setup.noise, k_tau, d.actuator_force)
-        contact = d.sensordata[contact_adr] > 0
-        # Contact force on each foot, world frame (the frame's normal points from geom 0 to geom 1).
+        # Force of each contact in its frame (normal first; the normal points from geom 0 to geom 1)
+        # and in the world frame; summed per foot with the sign of the force on the foot geom.
         con = d._impl.contact
-        f = jnp.stack([contact_force(model, d, i, to_world_frame=True)[:3] for i in range(con.geom.shape[0])])
+        f_con = jnp.stack([contact_force(model, d, i)[:3] for i in range(con.geom.shape[0])])
+        f_world = jnp.einsum("ci,cij->cj", f_con, con.frame)
         sign = jnp.where(con.geom[:, 1:2] == foot_geoms[None], 1.0, 0.0) - jnp.where(con.geom[:, 0:1] == foot_geoms[None], 1.0, 0.0)
-        gt_force = jnp.einsum("cf,cj->fj", sign, f)
+        gt_force = jnp.einsum("cf,cj->fj", sign, f_world)
+        contact = jnp.abs(sign).T @ f_con[:, 0] > GT_CONTACT_MIN_FORCE
         xy = d.qpos[qa : qa + 2]
         inside = _inside_any_box(setup.boxes, xy)
         s = eqx.tree_at(lambda r: (r.imu, r.key, r.collided), s, (imu, key, s.collided | inside))
