@@ -11,7 +11,8 @@ the feet:
 
 where M includes joint armature, h = C v + g is MuJoCo's `qfrc_bias`, S^T scatters joint torques to
 their dofs, and C is the Christoffel-consistent Coriolis matrix, so Mdot = C + C^T. Passive forces
-(joint damping, frictionloss) are not part of h; a caller that wants them adds them to S^T tau.
+(joint springs and damping, MuJoCo's `qfrc_passive`) and joint friction loss are not part of h;
+`passive_forces` models them and `momentum_terms` adds them to the observer's tau_bar by default.
 
 Functions take one state; `jax.vmap` over states (and over `m` for per-robot model variations) at
 the call site. `m` is an `mjx.Model` (traced: masses and inertias may be swept without recompiling);
@@ -42,6 +43,7 @@ __all__ = [
     "mass_matrix",
     "momentum_terms",
     "p_base_foot",
+    "passive_forces",
     "v_base_foot",
 ]
 
@@ -120,26 +122,63 @@ def coriolis_transpose_v(
     return mdot_v - _bias(m, d, qvel) + _bias(m, d, jnp.zeros_like(qvel))
 
 
+def passive_forces(
+    m: mjx.Model,
+    qpos: Float[Array, "nq"],
+    qvel: Float[Array, "nv"],
+    friction_velocity: float | Float[Array, ""] = 0.5,
+) -> Float[Array, "nv"]:
+    """Joint forces the model knows besides actuators, gravity and contacts (nv,), N or N m:
+    MuJoCo's `qfrc_passive` (joint springs, damping -damping * qvel, gravity compensation) plus
+    a smooth model of joint friction loss, -frictionloss * tanh(qvel / friction_velocity).
+
+    MuJoCo applies friction loss as a constraint: a force of magnitude up to `frictionloss` opposing
+    the velocity at the end of the step, any value in between while the joint sticks. The tanh is its
+    smooth stand-in (rad/s or m/s, > 0); it reaches 76% of the friction level at `friction_velocity`.
+    """
+    return _passive(m, _position_data(m, qpos), qvel, friction_velocity)
+
+
+def _passive(m: mjx.Model, d: mjx.Data, qvel: Array, friction_velocity) -> Array:
+    spring_damper = mjx.passive(m, d.replace(qvel=qvel)).qfrc_passive
+    return spring_damper - m.dof_frictionloss * jnp.tanh(qvel / friction_velocity)
+
+
 def momentum_terms(
     robot: Robot,
     qpos: Float[Array, "nq"],
     qvel: Float[Array, "nv"],
     tau: Float[Array, "nu"],
     m: mjx.Model | None = None,
-) -> tuple[Float[Array, "nv"], Float[Array, "nv"], Float[Array, "4 nv"]]:
-    """Inputs of the generalized-momentum contact observer: (p, tau_bar, J_z).
+    *,
+    passive: bool = True,
+    friction_velocity: float | Float[Array, ""] = 0.5,
+    axes: str = "z",
+) -> tuple[Float[Array, "nv"], Float[Array, "nv"], Float[Array, "R nv"]]:
+    """Inputs of the generalized-momentum contact observer: (p, tau_bar, J_rows).
 
-    p = M v (nv,); tau_bar = S^T tau + C^T v - g = S^T tau + Mdot v - h (nv,), so that
-    dp/dt = tau_bar + J^T f with f the ground-reaction forces on the feet (convention of the module
-    docstring); J_z (4, nv) = world-z rows of the foot point Jacobians (m per unit of qvel), feet in
-    `robot.foot_names` order. `tau` are joint torques in `robot.joint_names` order (N m).
-    `m` defaults to `robot.mjx_model`.
+    p = M v (nv,); tau_bar = S^T tau + C^T v - g + passive = S^T tau + Mdot v - h + passive (nv,),
+    so that dp/dt = tau_bar + J^T f with f the ground-reaction forces on the feet (convention of
+    the module docstring). `passive` adds `passive_forces` (joint damping, springs, smooth friction
+    loss with `friction_velocity`); without it tau_bar is the rigid-body part only. `tau` are joint
+    torques in `robot.joint_names` order (N m). `m` defaults to `robot.mjx_model`.
+
+    J_rows are rows of the foot point Jacobians in world axes (m per unit of qvel), feet in
+    `robot.foot_names` order: axes="z" gives the z rows (4, nv); axes="xyz" all three per foot
+    (12, nv), row 3 f + a for foot f and axis a, for an observer of full foot forces (the tangential
+    friction forces of stance feet otherwise leak into the z estimates of the other feet).
     """
+    if axes not in ("z", "xyz"):
+        raise ValueError(f"axes must be 'z' or 'xyz', got {axes!r}")
     m = robot.mjx_model if m is None else m
     p, mdot_v, d = _momentum_and_rate(m, qpos, qvel)
     s_tau = jnp.zeros(m.nv, tau.dtype).at[robot.dof_adr].add(tau)
     tau_bar = s_tau + mdot_v - _bias(m, d, qvel)
-    return p, tau_bar, _foot_jac_world(robot, m, d)[:, 2, :]
+    if passive:
+        tau_bar = tau_bar + _passive(m, d, qvel, friction_velocity)
+    jac = _foot_jac_world(robot, m, d)
+    rows = jac[:, 2, :] if axes == "z" else jac.reshape(-1, m.nv)
+    return p, tau_bar, rows
 
 
 class LegKinematics(eqx.Module):

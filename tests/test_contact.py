@@ -334,7 +334,7 @@ def test_go2_with_library_momentum_terms(record_property):
     m.dof_damping[:] = 0.0
     m.actuator_ctrllimited[:] = 0
     sim = _simulate(m, robot.base_body_id, robot.foot_site_ids, robot.qpos_adr, robot.dof_adr)
-    terms = jax.jit(jax.vmap(lambda q, v, tau: momentum_terms(robot, q, v, tau)))
+    terms = jax.jit(jax.vmap(lambda q, v, tau: momentum_terms(robot, q, v, tau, passive=False)))
     p, tau_bar, J_z = (np.asarray(x, np.float64) for x in terms(*(jnp.asarray(sim[k]) for k in ("qpos", "qvel", "ctrl"))))
     np.testing.assert_allclose(p, sim["p"], atol=1e-3 * np.abs(sim["p"]).max())
     np.testing.assert_allclose(tau_bar + sim["support"], sim["tau"], atol=2e-3 * np.abs(sim["tau"]).max())

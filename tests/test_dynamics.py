@@ -7,6 +7,7 @@ default float32 model as the simulator uses it, at float32 tolerances. Each fixt
 vmapped function once, which keeps the module's compile time small.
 """
 
+import copy
 import dataclasses
 
 import jax
@@ -40,6 +41,7 @@ def _random_states(robot, n, seed):
 
 def _all_terms(robot, m, qpos, qvel, tau):
     p, tau_bar, j_z = dyn.momentum_terms(robot, qpos, qvel, tau, m)
+    _, tau_bar_rigid, j_xyz = dyn.momentum_terms(robot, qpos, qvel, tau, m, passive=False, axes="xyz")
     legs = dyn.leg_kinematics(robot, qpos, qvel, m)
     return dict(
         M=dyn.mass_matrix(m, qpos),
@@ -54,7 +56,11 @@ def _all_terms(robot, m, qpos, qvel, tau):
         v_base=legs.v_base_foot,
         p=p,
         tau_bar=tau_bar,
+        tau_bar_rigid=tau_bar_rigid,
+        J_xyz=j_xyz,
         J_z=j_z,
+        passive=dyn.passive_forces(m, qpos, qvel),
+        passive_slow=dyn.passive_forces(m, qpos, qvel, friction_velocity=2.0),
     )
 
 
@@ -152,6 +158,7 @@ def test_foot_positions_and_jacobians_match_mujoco(case):
             mujoco.mj_jacSite(m, d, jac[f], None, s)
         np.testing.assert_allclose(out["J_world"][i], jac, atol=1e-9)
         np.testing.assert_allclose(out["J_z"][i], jac[:, 2, :], atol=1e-9)
+        np.testing.assert_allclose(out["J_xyz"][i], jac.reshape(12, m.nv), atol=1e-9)
 
 
 def test_base_frame_jacobian_and_velocity_by_finite_differences(case):
@@ -194,14 +201,65 @@ def test_coriolis_transpose_by_finite_differences(case):
     assert np.abs(out["ctv"][0]).max() > 1e-2  # the check is not vacuous
 
 
+def _friction_model(robot, qvel, friction_velocity=0.5):
+    """-frictionloss tanh(qvel / friction_velocity), the documented smooth friction-loss model."""
+    return -robot.mj_model.dof_frictionloss * np.tanh(qvel / friction_velocity)
+
+
 def test_momentum_terms_match_mujoco(case):
-    """p = M v, tau_bar = S^T tau + Mdot v - h (= S^T tau + C^T v - g), all from MuJoCo C."""
+    """p = M v, tau_bar = S^T tau + Mdot v - h (= S^T tau + C^T v - g) plus MuJoCo's qfrc_passive and
+    the friction model (default), or the rigid-body part alone (passive=False), all from MuJoCo C."""
     robot, qpos, qvel, tau, out = case
     for i in range(N_STATES):
         d = _c_state(robot, qpos[i], qvel[i], ctrl=tau[i])
         np.testing.assert_allclose(out["p"][i], _c_full_m(robot, qpos[i]) @ qvel[i], atol=1e-9)
-        expected = d.qfrc_actuator + _c_mdot_v(robot, qpos[i], qvel[i]) - d.qfrc_bias
-        np.testing.assert_allclose(out["tau_bar"][i], expected, atol=1e-6)
+        rigid = d.qfrc_actuator + _c_mdot_v(robot, qpos[i], qvel[i]) - d.qfrc_bias
+        np.testing.assert_allclose(out["tau_bar_rigid"][i], rigid, atol=1e-6)
+        passive = d.qfrc_passive + _friction_model(robot, qvel[i])
+        np.testing.assert_allclose(out["passive"][i], passive, atol=1e-9)
+        np.testing.assert_allclose(out["tau_bar"][i], rigid + passive, atol=1e-6)
+        np.testing.assert_allclose(out["passive_slow"][i], d.qfrc_passive + _friction_model(robot, qvel[i], 2.0), atol=1e-9)
+    assert np.abs(out["passive"][:-1, robot.dof_adr]).max() > 0.1  # damping and friction present
+
+
+def test_passive_forces_match_mujoco_damping_and_steady_friction():
+    """Damping against MuJoCo C's qfrc_passive, and the friction model against the converged friction-
+    loss constraint forces (efc rows, which saturate at -frictionloss sign(qdot)) with every joint moving
+    at 2-4 rad/s, where tanh(qdot / 0.5) is within 1e-3 of the sign."""
+    robot = load("go2")
+    m = copy.copy(robot.mj_model)
+    m.opt.iterations, m.opt.ls_iterations = 100, 50
+    m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
+    rng = np.random.default_rng(5)
+    qpos, qvel, _ = _random_states(robot, N_STATES, seed=5)
+    qvel[:, robot.dof_adr] = rng.choice([-1.0, 1.0], (N_STATES, robot.nu)) * rng.uniform(2.0, 4.0, (N_STATES, robot.nu))
+    fn = jax.jit(jax.vmap(lambda q, v: dyn.passive_forces(robot.mjx_model, q, v)))
+    ours = np.asarray(fn(jnp.asarray(qpos, jnp.float32), jnp.asarray(qvel, jnp.float32)))
+    for i in range(N_STATES):
+        d = mujoco.MjData(m)
+        d.qpos[:], d.qvel[:] = qpos[i], qvel[i]
+        mujoco.mj_forward(m, d)
+        rows = d.efc_type == mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF
+        friction = np.zeros(m.nv)
+        friction[d.efc_id[rows]] = d.efc_force[rows]
+        assert rows.sum() == robot.nu and np.all(np.abs(friction[robot.dof_adr]) > 0.19)
+        np.testing.assert_allclose(d.qfrc_passive, -m.dof_damping * qvel[i], atol=1e-12)
+        np.testing.assert_allclose(ours[i], d.qfrc_passive + friction, atol=1e-3)
+
+
+def test_passive_forces_gradient_and_zero_velocity():
+    """At rest the force is zero and its velocity Jacobian is the closed form -diag(damping +
+    frictionloss / friction_velocity) (finite, jit and jacfwd)."""
+    robot = load("go2")
+    m = robot.mjx_model
+    q = jnp.asarray(robot.qpos_home, jnp.float32)
+    zero = jnp.zeros(robot.nv, jnp.float32)
+    jac = jax.jit(jax.jacfwd(lambda v: dyn.passive_forces(m, q, v, 0.25)))(zero)
+    mc = robot.mj_model
+    np.testing.assert_allclose(np.asarray(jac), -np.diag(mc.dof_damping + mc.dof_frictionloss / 0.25), rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(dyn.passive_forces(m, q, zero)), 0.0)
+    with pytest.raises(ValueError, match="axes"):
+        dyn.momentum_terms(robot, q, zero, jnp.zeros(robot.nu), axes="x")
 
 
 def test_zero_velocity_is_finite(case):
@@ -214,6 +272,7 @@ def test_zero_velocity_is_finite(case):
     s_tau = np.zeros(robot.nv)
     s_tau[robot.dof_adr] = tau[-1]
     np.testing.assert_allclose(out["tau_bar"][-1], s_tau - out["g"][-1], atol=1e-12)
+    np.testing.assert_allclose(out["tau_bar_rigid"][-1], s_tau - out["g"][-1], atol=1e-12)
 
 
 def test_integrate_pos_gradient_at_zero_rate():
@@ -241,6 +300,7 @@ def test_go2_float32_matches_mujoco(go2_case):
         pv = _c_full_m(robot, qpos[i]) @ qvel[i]
         np.testing.assert_allclose(p[i], pv, atol=2e-5 * np.abs(pv).max())
         expected = d.qfrc_actuator + _c_mdot_v(robot, qpos[i], qvel[i]) - d.qfrc_bias
+        expected += d.qfrc_passive + _friction_model(robot, qvel[i])
         np.testing.assert_allclose(tau_bar[i], expected, atol=2e-5 * np.abs(expected).max())
         jac = np.zeros((4, 3, m.nv))
         for f, s in enumerate(robot.foot_site_ids):
