@@ -247,10 +247,14 @@ class ContactObserver(eqx.Module):
             return df - spd_solve(jacobian, equation)
 
         # Newton on the force increment of the implicit step, unrolled (the count is static); in
-        # plain mode the equation is linear and one iteration is exact.
+        # plain mode the equation is linear and one iteration is exact. Newton's map has zero
+        # derivative in df at the solution, so differentiating only the last iteration (the earlier
+        # ones held constant) gives the implicit-function derivative of the converged df, and the
+        # backward pass holds one iteration instead of all of them.
         df = jnp.zeros_like(state.f_hat)
-        for _ in range(1 if params.mode == "plain" else _NEWTON_ITERS):
+        for _ in range(0 if params.mode == "plain" else _NEWTON_ITERS - 1):
             df = newton(df)
+        df = newton(jax.lax.stop_gradient(df))
         r, _, _ = _residual_and_k2(s0 - dt * _combine(J_z, df), h, params.sharpness, params.mode)
         f_hat = state.f_hat + df
         p_hat = p - r

@@ -62,25 +62,29 @@ def _check_image(depth: Array, band_height: int) -> None:
         raise ValueError(f"band_height must be in 1..{depth.shape[0]} (image height), got {band_height}")
 
 
-def _band_depth(depth: Array, rows: Array, inside: Array) -> Array:
-    """Depth of pixels (rows[k, u], u) for every column u whose row is `inside` the image (other
-    entries read pixel (0, u) and are to be masked).
+def _readings(z: Array, inside: Array) -> tuple[Array, Array]:
+    """Whether each band pixel is a reading (on the image, finite, > 0), and its depth with
+    non-readings set to 1 (safe-where: no NaN/inf reaches later arithmetic or its gradient)."""
+    good = inside & jnp.isfinite(z) & (z > 0)
+    return jnp.where(good, z, 1.0), good
+
+
+def _band_depth(depth: Array, rows: Array) -> tuple[Array, Array]:
+    """Depth of pixels (rows[k, u], u) for every column u and whether each is a reading (`_readings`).
 
     The band is read as one gather of single linear indices into the flattened image (under vmap:
     one batch and one pixel coordinate per element, no index array of (row, column) pairs), already
     in bounds, so no clamping or wrapping is added; neighbouring columns read neighbouring pixels."""
-    width = depth.shape[1]
+    height, width = depth.shape
+    inside = (rows >= 0) & (rows <= height - 1)
     row = jnp.where(inside, rows, 0.0).astype(jnp.int32)  # also maps NaN rows (invalid angles) to 0
-    return depth.reshape(-1).at[row * width + jnp.arange(width, dtype=jnp.int32)].get(mode="promise_in_bounds")
+    z = depth.reshape(-1).at[row * width + jnp.arange(width, dtype=jnp.int32)].get(mode="promise_in_bounds")
+    return _readings(z, inside)
 
 
-def _column_scan(
-    z: Array, inside: Array, u: Array, fx: Array, cx: Array, range_min, range_max
-) -> Scan:
+def _column_scan(z: Array, good: Array, u: Array, fx: Array, cx: Array, range_min, range_max) -> Scan:
     """One ray per column: the minimum valid camera-frame range sqrt(x^2 + z^2), x = (u - c_x) z / f_x,
-    over the band's rows (axis 0), in one elementwise pass ending in the reduction."""
-    good = inside & jnp.isfinite(z) & (z > 0)
-    z = jnp.where(good, z, 1.0)  # safe-where: no NaN/inf reaches the arithmetic or its gradient
+    over the band's rows (axis 0)."""
     x = (u - cx) * z / fx
     r = jnp.sqrt(x * x + z * z)
     valid = good & (r >= range_min) & (r <= range_max)
@@ -114,8 +118,8 @@ def stabilized_scan(
     base_rows = jnp.floor(cy - band_height / 2) + jnp.arange(band_height, dtype=jnp.float32)
     shift = (u - cx) * jnp.tan(-roll) - fy * jnp.tan(pitch)
     rows = jnp.round(base_rows[:, None] + shift[None, :])
-    inside = (rows >= 0) & (rows <= depth.shape[0] - 1)
-    return _column_scan(_band_depth(depth, rows, inside), inside, u, fx, cx, range_min, range_max)
+    z, good = _band_depth(depth, rows)
+    return _column_scan(z, good, u, fx, cx, range_min, range_max)
 
 
 def baseline_scan(
@@ -136,9 +140,9 @@ def baseline_scan(
     start = jnp.where(jnp.isfinite(first), jnp.clip(first, 0, height - band_height), 0.0)
     rows = start + jnp.arange(band_height, dtype=jnp.float32)
     band = jax.lax.dynamic_slice_in_dim(depth, start.astype(jnp.int32), band_height, axis=0)
-    inside = ((rows >= first) & (rows <= first + band_height - 1))[:, None]
+    z, good = _readings(band, ((rows >= first) & (rows <= first + band_height - 1))[:, None])
     u = jnp.arange(depth.shape[1], dtype=jnp.float32)
-    return _column_scan(band, inside, u, fx, cx, range_min, range_max)
+    return _column_scan(z, good, u, fx, cx, range_min, range_max)
 
 
 def _R_level_base(roll, pitch):
@@ -184,10 +188,7 @@ def level_scan(
     offsets = jnp.arange(band_height, dtype=jnp.float32) - (band_height - 1) // 2
     rows = jnp.round(horizon)[None, :] + offsets[:, None]  # (h, W)
 
-    inside = (rows >= 0) & (rows <= depth.shape[0] - 1)
-    z = _band_depth(depth, rows, inside)
-    good = inside & jnp.isfinite(z) & (z > 0)
-    z = jnp.where(good, z, 1.0)  # safe-where, as in _column_scan
+    z, good = _band_depth(depth, rows)
     p_cam = jnp.stack([(u - cx)[None, :] * z / fx, (rows - cy) * z / fy, z], axis=-1)
     p_base = jnp.stack([p_cam[..., 2], -p_cam[..., 0], -p_cam[..., 1]], axis=-1)
     p_level = p_base @ _R_level_base(roll, pitch).T
