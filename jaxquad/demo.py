@@ -359,7 +359,9 @@ def _pictures(folder: Path, log: dict, summaries: dict, scans: dict, maps: list,
     k = _frame_samples(t, np.asarray(log["depth_t"], np.float64))
     ok = np.asarray(log["valid"], bool)[i, k]
     s, b = scans["stabilized"][i], scans["baseline"][i]
-    diff = np.sum(np.where(np.isfinite(s) & np.isfinite(b), np.abs(s - b), np.isfinite(s) ^ np.isfinite(b)), axis=1)
+    both = np.isfinite(s) & np.isfinite(b)
+    # A ray read by one band only counts 1 m; rays read by neither (inf) never enter a subtraction.
+    diff = np.sum(np.abs(np.where(both, s, 0.0) - np.where(both, b, 0.0)) + (np.isfinite(s) ^ np.isfinite(b)), axis=1)
     f = int(np.argmax(np.where(ok, diff, -1)))
     xy, yaw = _camera_pose_2d(gt[i, k[f]], np.asarray(log["T_base_camera"], np.float64))
     pts = {s: report.scan_points_world(scans[s][i, f], scans["bearings"], xy, float(yaw)) for s in ("baseline", "stabilized")}
