@@ -141,9 +141,10 @@ class ContactEstimate(eqx.Module):
     valid: Bool[Array, ""]
 
 
-# Products of these tiny matrices avoid dot ops, which under vmap are separate batched-matmul calls:
-# sums over the few feet are unrolled into elementwise multiply-adds, sums over the dofs are a
-# broadcast product and one reduction; both fuse with the elementwise code around them.
+# Products of these tiny matrices avoid dot ops, which under vmap are separate batched-matmul calls
+# (and may run in TF32 on a GPU at the default matmul precision): sums over the few feet are unrolled
+# into elementwise multiply-adds, sums over the dofs are a broadcast product and one reduction; both
+# fuse with the elementwise code around them and stay in full float32.
 def _combine(columns: Float[Array, "F n"], weights: Float[Array, "F"]) -> Float[Array, "n"]:
     """sum_f weights[f] columns[f], unrolled over the static F."""
     return sum((columns[f] * weights[f] for f in range(1, weights.shape[0])), columns[0] * weights[0])
