@@ -162,6 +162,17 @@ def test_baseline_matches_reference_loop_when_the_band_overhangs_the_image(cy):
         assert np.all(np.isinf(scan.ranges))
 
 
+def test_numpy_depth_images_are_accepted():
+    depth = np.random.default_rng(6).uniform(0.1, 9.0, (60, 80)).astype(np.float32)
+    small_K = (70.0, 70.0, 39.5, 29.5)
+    for scan in (
+        lambda d: stabilized_scan(d, small_K, 0.05, -0.02, 6),
+        lambda d: baseline_scan(d, small_K, 6),
+        lambda d: level_scan(d, small_K, 0.05, -0.02, 6),
+    ):
+        np.testing.assert_array_equal(scan(depth).ranges, scan(jnp.asarray(depth)).ranges)
+
+
 def test_bearing_sign_left_is_positive():
     # A wall patch only in the left half of the image must appear at positive bearings.
     depth = np.zeros((HEIGHT, WIDTH), np.float32)
