@@ -160,6 +160,8 @@ def test_inputs_from_log_errors(robot, fixed_feet_log):
     log["joint_names"] = np.array(["a"] * 12)
     with pytest.raises(ValueError, match="has no joint"):
         pipeline.inputs_from_log(robot, log, "truth")
+    with pytest.raises(ValueError, match="observer_axes"):
+        pipeline.PipelineConfig(contacts="mixed", observer_axes="xy")
 
 
 def test_cli_end_to_end_on_a_written_log(robot, fixed_feet_log, tmp_path):

@@ -156,7 +156,8 @@ def test_observer_inputs_from_a_log_match_mujoco_c(robot, sims):
     short = [{k: v[:12] for k, v in s.items()} for s in sims[:2]]
     log = _fleet_log(robot, short)
     log["tau"][1, 5, 2] = 1e3  # saturated: the step is skipped
-    inputs, truth, t = tn.observer_inputs(robot, log, chunk=8)
+    inputs, truth, t = tn.observer_inputs(robot, log, chunk=8, axes="z", passive=False)
+    full, _, _ = tn.observer_inputs(robot, log, chunk=8)  # the defaults: x, y, z rows and passive forces
     m = robot.mj_model
     d_fd = mujoco.MjData(m)
     for i, s in enumerate(short):
@@ -169,10 +170,16 @@ def test_observer_inputs_from_a_log_match_mujoco_c(robot, sims):
             np.testing.assert_allclose(inputs.p[i, k], p, rtol=1e-4, atol=1e-4)
             np.testing.assert_allclose(inputs.tau_bar[i, k], tau_bar, rtol=1e-3, atol=2e-3)
             np.testing.assert_allclose(inputs.J_z[i, k], J_z, atol=1e-5)
+            np.testing.assert_allclose(full.J_z[i, k, 2::3], J_z, atol=1e-5)
+            d_fd.qpos[:], d_fd.qvel[:] = s["gt_pose"][k].tolist() + list(s["q"][k]), qvel
+            mujoco.mj_forward(m, d_fd)
+            passive = d_fd.qfrc_passive - m.dof_frictionloss * np.tanh(qvel / 0.5)
+            np.testing.assert_allclose(full.tau_bar[i, k] - inputs.tau_bar[i, k], passive, atol=2e-3)
     assert np.isnan(inputs.dt[:, 0]).all() and inputs.restart[:, 0].all() and not inputs.restart[:, 1:].any()
     assert np.isnan(inputs.dt[1, 5]) and np.isfinite(np.delete(np.asarray(inputs.dt[1]), [0, 5])).all()
     np.testing.assert_array_equal(truth.contact, log["gt_contact"])
     np.testing.assert_allclose(truth.force_z, log["gt_force"][..., 2])
+    assert full.axes == "xyz" and full.n_feet == 4 and full.J_z.shape[-2] == 12
 
 
 def test_observer_inputs_errors(robot, sims):
@@ -184,6 +191,37 @@ def test_observer_inputs_errors(robot, sims):
     bad = dict(log, joint_names=np.array(["x"] * 12))
     with pytest.raises(ValueError, match="no joint"):
         tn.observer_inputs(robot, bad)
+
+
+def test_full_force_observer_recovers_vertical_forces_under_tangential_forces(robot):
+    """Constant foot forces with friction-like tangential parts on a still Go2 (p = 0, so tau_bar =
+    -J^T f): the x, y, z observer's z estimates converge to the true z forces; a z-only observer
+    explains the tangential parts with z forces and misses by newtons."""
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[:] = robot.qpos_home
+    mujoco.mj_forward(m, d)
+    J = np.zeros((4, 3, m.nv))
+    for f, site in enumerate(robot.foot_site_ids):
+        mujoco.mj_jacSite(m, d, J[f], None, site)
+    force = np.array([[8.0, -5.0, 40.0], [-6.0, 4.0, 35.0], [7.0, 6.0, 30.0], [-9.0, -3.0, 45.0]])
+    T = 150
+    dt = np.full(T, 0.004, np.float32)
+    dt[0] = np.nan
+    params = ObserverParams.paper(4, "plain", bandwidth=60.0)
+    for axes, rows in (("xyz", J.reshape(12, m.nv)), ("z", J[:, 2, :])):
+        inputs = tn.ObserverInputs(
+            p=jnp.zeros((T, m.nv)), tau_bar=jnp.tile(jnp.asarray(-J.reshape(12, m.nv).T @ force.ravel(), jnp.float32), (T, 1)),
+            J_z=jnp.tile(jnp.asarray(rows, jnp.float32), (T, 1, 1)), dt=jnp.asarray(dt),
+            restart=jnp.arange(T) == 0, axes=axes,
+        )  # fmt: skip
+        est = tn.run_observer(params, inputs)
+        assert est.force_z.shape == (T, 4) and inputs.n_feet == 4
+        err = np.abs(np.asarray(est.force_z[-1]) - force[:, 2])
+        if axes == "xyz":
+            assert err.max() < 0.2, err
+        else:
+            assert err.max() > 3.0, err
 
 
 # ---------------------------------------------------------------- grid search

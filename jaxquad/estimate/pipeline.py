@@ -3,7 +3,9 @@
 Per sample k (dt = t_k - t_{k-1}):
   1. joint velocities: the log's qd, or the causal differentiating filter on q;
   2. attitude: the log's quat_wxyz, or the Mahony filter on gyro and accelerometer;
-  3. contacts: ground truth, the robot's sensor flags, or the momentum observer (plain or mixed);
+  3. contacts: ground truth, the robot's sensor flags, or the momentum observer (plain or mixed;
+     by default it estimates full 3D foot forces and thresholds their z components, with the
+     model's joint damping and friction in tau_bar: `jaxquad.dynamics.momentum_terms`);
   4. foot positions and velocities in the base frame from the MJX model (jaxquad.dynamics:
      forward kinematics and v_base_foot = J(q) qd);
   5. the twist least squares (kernels.body_twist) on the stance feet and the gyro;
@@ -38,7 +40,7 @@ from jaxquad.estimate import attitude as att
 from jaxquad.estimate import differentiate as dif
 from jaxquad.estimate._rot import quat_multiply, quat_to_matrix
 from jaxquad.estimate.odometry import Pose, odometry_step
-from jaxquad.kernels import ContactObserver, ObserverParams, body_twist
+from jaxquad.kernels import ContactEstimate, ContactObserver, ObserverParams, body_twist
 
 CONTACT_SOURCES = ("truth", "sensor", "observer", "mixed")
 
@@ -81,12 +83,19 @@ class PipelineConfig:
     # observer rows: "full" = every generalized coordinate, floating base included (the paper);
     # "joints" = the actuated joints only, insensitive to errors in the estimated base velocity.
     observer_rows: str = "full"
+    # observer force axes: "xyz" = full foot forces, z components thresholded (a z-only observer
+    # reads the stance feet's tangential friction forces as z forces, on every foot); "z" = z only.
+    observer_axes: str = "xyz"
+    # observer tau_bar with the model's joint damping and friction (`dynamics.passive_forces`).
+    observer_passive: bool = True
 
     def __post_init__(self):
         if self.contacts not in CONTACT_SOURCES:
             raise ValueError(f"contacts must be one of {CONTACT_SOURCES}, got {self.contacts!r}")
         if self.observer_rows not in ("full", "joints"):
             raise ValueError(f"observer_rows must be 'full' or 'joints', got {self.observer_rows!r}")
+        if self.observer_axes not in ("z", "xyz"):
+            raise ValueError(f"observer_axes must be 'z' or 'xyz', got {self.observer_axes!r}")
 
 
 class RobotInputs(eqx.Module):
@@ -145,6 +154,29 @@ class _Carry(eqx.Module):
     fallen: Bool[Array, ""]
 
 
+def observer_params_for_axes(params: ObserverParams, axes: str) -> ObserverParams:
+    """Observer numbers for force rows of `axes` per foot: for "xyz" every per-foot number is repeated
+    for the x, y and z rows (row 3 f + a), as `dynamics.momentum_terms(..., axes="xyz")` orders them;
+    only the z rows' post-processing is used (`vertical_estimate`)."""
+    if axes == "z":
+        return params
+    rep = lambda x: jnp.repeat(x, 3, axis=-1)  # noqa: E731
+    return dataclasses.replace(
+        params, alpha=rep(params.alpha), threshold_on=rep(params.threshold_on), threshold_off=rep(params.threshold_off)
+    )
+
+
+def vertical_estimate(estimate: ContactEstimate, axes: str) -> ContactEstimate:
+    """The z rows of an observer estimate over force rows of `axes` (a no-op for "z")."""
+    if axes == "z":
+        return estimate
+    z = lambda x: x[..., 2::3]  # noqa: E731
+    return dataclasses.replace(
+        estimate, force_z=z(estimate.force_z), force_z_filtered=z(estimate.force_z_filtered),
+        contact=z(estimate.contact), contact_soft=z(estimate.contact_soft),
+    )  # fmt: skip
+
+
 def _R_base_imu(robot) -> np.ndarray:
     """Rotation of the IMU site in the base frame, at the home configuration (MuJoCo C)."""
     import mujoco
@@ -182,7 +214,9 @@ def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs
 
     if observer:
         rows = np.arange(robot.nv) if config.observer_rows == "full" else np.asarray(robot.dof_adr)
-        obs0 = ContactObserver().init(params.observer, jnp.zeros(rows.size, inputs.q.dtype), n_feet)
+        obs_params = observer_params_for_axes(params.observer, config.observer_axes)
+        n_force = n_feet * (3 if config.observer_axes == "xyz" else 1)
+        obs0 = ContactObserver().init(obs_params, jnp.zeros(rows.size, inputs.q.dtype), n_force)
     else:
         obs0 = None
     zeros3 = jnp.zeros(3, inputs.gyro.dtype)
@@ -248,13 +282,17 @@ def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs
         qvel = qvel.at[robot.base_dof_adr + 3 : robot.base_dof_adr + 6].set(gyro)
         qvel = qvel.at[jnp.asarray(robot.dof_adr)].set(qd_use)
         if observer:
-            p_mom, tau_bar, J_z = dynamics.momentum_terms(robot, qpos, qvel, jnp.where(tau_ok, tau, 0.0))
+            tau_obs = jnp.where(tau_ok, tau, 0.0)
+            p_mom, tau_bar, J_z = dynamics.momentum_terms(
+                robot, qpos, qvel, tau_obs, passive=config.observer_passive, axes=config.observer_axes
+            )
             p_mom, tau_bar, J_z = p_mom[rows], tau_bar[rows], J_z[:, rows]
             obs_prev = jax.tree.map(lambda a: a, c.obs)
             # After a gap the momentum residual is meaningless: restart the estimate at p.
             obs_prev = eqx.tree_at(lambda s: s.p_hat, obs_prev, jnp.where(gap | first, p_mom, obs_prev.p_hat))
             obs_dt = jnp.where(tau_ok & ~gap & ~first, dt, jnp.nan)  # NaN dt: the step is rejected (held)
-            obs_state, est = ContactObserver().step(params.observer, obs_prev, p_mom, tau_bar, J_z, obs_dt)
+            obs_state, est = ContactObserver().step(obs_params, obs_prev, p_mom, tau_bar, J_z, obs_dt)
+            est = vertical_estimate(est, config.observer_axes)
             contact, contact_soft = est.contact, est.contact_soft
             force_z, force_f = est.force_z, est.force_z_filtered
             weight = contact_soft if config.soft_contacts else contact.astype(contact_soft.dtype)

@@ -1,7 +1,9 @@
 """Tuning of the contact observer's numbers over a fleet log: grid search and gradient descent.
 
 Structure. Contact quality depends on the observer alone, so the observer inputs (p, tau_bar, J_z
-per robot and sample) are computed once per log (`observer_inputs`: MJX `momentum_terms` under
+per robot and sample; as in the pipeline's default, tau_bar includes the model's joint damping and
+friction and J_z holds the x, y and z Jacobian rows of each foot, of which only the z forces are
+post-processed and scored) are computed once per log (`observer_inputs`: MJX `momentum_terms` under
 jit/vmap) and each configuration then runs only the observer's `lax.scan`: configurations on one
 vmap axis, robots on another, configurations in fixed-size chunks to bound memory.
 
@@ -53,6 +55,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from jaxquad.estimate import scores
+from jaxquad.estimate.pipeline import observer_params_for_axes, vertical_estimate
 from jaxquad.kernels import ContactEstimate, ContactObserver, ObserverParams
 
 # Keys of a params file, as jaxquad.estimate.run.load_params reads them.
@@ -64,9 +67,14 @@ class ObserverInputs(eqx.Module):
 
     p: Float[Array, "T nv"]  # generalized momentum M v
     tau_bar: Float[Array, "T nv"]  # S^T tau + C^T v - g
-    J_z: Float[Array, "T F nv"]  # world-z rows of the foot Jacobians (m per unit of qvel)
+    J_z: Float[Array, "T R nv"]  # world rows of the foot Jacobians (m per unit of qvel), `axes` per foot
     dt: Float[Array, "T"]  # s; NaN where the step is skipped (first sample, gap, bad torque)
     restart: Bool[Array, "T"]  # p_hat restarts at p (first sample, after a gap)
+    axes: str = eqx.field(static=True, default="z")  # "z" (R = F) or "xyz" (R = 3 F, row 3 f + a)
+
+    @property
+    def n_feet(self) -> int:
+        return self.J_z.shape[-2] // (3 if self.axes == "xyz" else 1)
 
 
 class ContactTruth(eqx.Module):
@@ -102,17 +110,22 @@ def _R_base_imu(robot) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=4)
-def _momentum_fn(robot):
+def _momentum_fn(robot, axes: str, passive: bool):
     from jaxquad import dynamics
 
-    return jax.jit(jax.vmap(functools.partial(dynamics.momentum_terms, robot)))
+    return jax.jit(jax.vmap(functools.partial(dynamics.momentum_terms, robot, axes=axes, passive=passive)))
 
 
 def observer_inputs(
-    robot, log: dict, max_gap_s: float = 0.05, torque_saturation: float = 0.99, chunk: int = 4096
+    robot, log: dict, max_gap_s: float = 0.05, torque_saturation: float = 0.99, chunk: int = 4096,
+    axes: str = "xyz", passive: bool = True,
 ) -> tuple[ObserverInputs, ContactTruth, np.ndarray]:
     """Observer inputs and ground truth of every robot of a log (leading axis N; a single log is a
-    fleet of one), and the sample times t (T,) in s. Samples go through MJX in chunks of `chunk`."""
+    fleet of one), and the sample times t (T,) in s. Samples go through MJX in chunks of `chunk`.
+    axes: force rows per foot, "xyz" (full foot forces, the default) or "z"; passive: tau_bar with
+    the model's joint damping and friction (as PipelineConfig.observer_axes / observer_passive)."""
+    if axes not in ("z", "xyz"):
+        raise ValueError(f"axes must be 'z' or 'xyz', got {axes!r}")
     need = [k for k in ("tau", "qd", "gt_pose", "gt_contact", "gt_force") if k not in log]
     if need:
         raise ValueError(f"tuning needs {need} in the log (joint torques, joint velocities and ground truth)")
@@ -149,7 +162,7 @@ def observer_inputs(
     tau = np.where(tau_ok[..., None], tau, 0.0)
 
     flat = [a.reshape(n * T, -1).astype(np.float32) for a in (qpos, qvel, tau)]
-    fn, total = _momentum_fn(robot), n * T
+    fn, total = _momentum_fn(robot, axes, passive), n * T
     chunk = max(1, min(chunk, total))
     parts = []
     for start in range(0, total, chunk):
@@ -164,7 +177,7 @@ def observer_inputs(
     step_dt = np.where(tau_ok & ~(first | gap)[None], dt[None], np.nan)
     inputs = ObserverInputs(
         p=jnp.asarray(p), tau_bar=jnp.asarray(tau_bar), J_z=jnp.asarray(J_z),
-        dt=jnp.asarray(step_dt, jnp.float32), restart=jnp.asarray(np.broadcast_to(first | gap, (n, T))),
+        dt=jnp.asarray(step_dt, jnp.float32), restart=jnp.asarray(np.broadcast_to(first | gap, (n, T))), axes=axes,
     )  # fmt: skip
     valid = np.asarray(log["valid"], bool) if fleet else np.ones((1, T), bool)
     truth = ContactTruth(
@@ -187,14 +200,15 @@ def select_robots(tree, index):
 def _observer_scan(params: ObserverParams, inputs: ObserverInputs, carry0, reduce, truth: ContactTruth | None):
     """lax.scan of the observer; reduce(carry, estimate, truth_k) -> (carry, output)."""
     observer = ContactObserver()
-    state0 = observer.init(params, inputs.p[0], inputs.J_z.shape[-2])
+    row_params = observer_params_for_axes(params, inputs.axes)
+    state0 = observer.init(row_params, inputs.p[0], inputs.J_z.shape[-2])
 
     def step(c, x):
         state, acc = c
         (p, tau_bar, J_z, dt, restart), truth_k = x
         state = eqx.tree_at(lambda s: s.p_hat, state, jnp.where(restart, p, state.p_hat))
-        state, est = observer.step(params, state, p, tau_bar, J_z, dt)
-        acc, out = reduce(acc, est, truth_k)
+        state, est = observer.step(row_params, state, p, tau_bar, J_z, dt)
+        acc, out = reduce(acc, vertical_estimate(est, inputs.axes), truth_k)
         return (state, acc), out
 
     xs = ((inputs.p, inputs.tau_bar, inputs.J_z, inputs.dt, inputs.restart), truth)
@@ -209,7 +223,7 @@ def run_observer(params: ObserverParams, inputs: ObserverInputs) -> ContactEstim
 
 def observer_counts(params: ObserverParams, inputs: ObserverInputs, truth: ContactTruth) -> Counts:
     """Contact confusion counts and squared force error of one robot, accumulated inside the scan."""
-    n_feet = inputs.J_z.shape[-2]
+    n_feet = inputs.n_feet
     zeros = jnp.zeros(n_feet, jnp.int32)
     acc0 = Counts(tp=zeros, fp=zeros, fn=zeros, force_sq=jnp.zeros(n_feet, jnp.float32), samples=jnp.zeros((), jnp.int32))
 
@@ -574,7 +588,7 @@ def tune_fleet(
     n = inputs.p.shape[0]
     train, held = split_robots(n, holdout)
     tr_in, tr_truth = select_robots(inputs, train), select_robots(truth, train)
-    paper = ObserverParams.paper(inputs.J_z.shape[-2], mode)
+    paper = ObserverParams.paper(inputs.n_feet, mode)
     summary: dict = {"method": method, "mode": mode, "robots_train": int(train.size), "robots_heldout": int(held.size),
                      "samples": int(t.size), "duration_s": float(t[-1] - t[0])}  # fmt: skip
     if method == "grid":
