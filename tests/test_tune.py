@@ -156,8 +156,10 @@ def test_observer_inputs_from_a_log_match_mujoco_c(robot, sims):
     short = [{k: v[:12] for k, v in s.items()} for s in sims[:2]]
     log = _fleet_log(robot, short)
     log["tau"][1, 5, 2] = 1e3  # saturated: the step is skipped
-    inputs, truth, t = tn.observer_inputs(robot, log, chunk=8, axes="z", passive=False)
-    full, _, _ = tn.observer_inputs(robot, log, chunk=8)  # the defaults: x, y, z rows and passive forces
+    inputs, truth, t = tn.observer_inputs(robot, log, chunk=8, axes="z", passive=False, rows="full")
+    # The defaults: joint coordinates, x, y, z force rows, passive forces.
+    full, _, _ = tn.observer_inputs(robot, log, chunk=8)
+    dofs = np.asarray(robot.dof_adr)
     m = robot.mj_model
     d_fd = mujoco.MjData(m)
     for i, s in enumerate(short):
@@ -170,16 +172,17 @@ def test_observer_inputs_from_a_log_match_mujoco_c(robot, sims):
             np.testing.assert_allclose(inputs.p[i, k], p, rtol=1e-4, atol=1e-4)
             np.testing.assert_allclose(inputs.tau_bar[i, k], tau_bar, rtol=1e-3, atol=2e-3)
             np.testing.assert_allclose(inputs.J_z[i, k], J_z, atol=1e-5)
-            np.testing.assert_allclose(full.J_z[i, k, 2::3], J_z, atol=1e-5)
+            np.testing.assert_allclose(full.J_z[i, k, 2::3], J_z[:, dofs], atol=1e-5)
+            np.testing.assert_allclose(full.p[i, k], p[dofs], rtol=1e-4, atol=1e-4)
             d_fd.qpos[:], d_fd.qvel[:] = s["gt_pose"][k].tolist() + list(s["q"][k]), qvel
             mujoco.mj_forward(m, d_fd)
             passive = d_fd.qfrc_passive - m.dof_frictionloss * np.tanh(qvel / 0.5)
-            np.testing.assert_allclose(full.tau_bar[i, k] - inputs.tau_bar[i, k], passive, atol=2e-3)
+            np.testing.assert_allclose(full.tau_bar[i, k] - inputs.tau_bar[i, k, dofs], passive[dofs], atol=2e-3)
     assert np.isnan(inputs.dt[:, 0]).all() and inputs.restart[:, 0].all() and not inputs.restart[:, 1:].any()
     assert np.isnan(inputs.dt[1, 5]) and np.isfinite(np.delete(np.asarray(inputs.dt[1]), [0, 5])).all()
     np.testing.assert_array_equal(truth.contact, log["gt_contact"])
     np.testing.assert_allclose(truth.force_z, log["gt_force"][..., 2])
-    assert full.axes == "xyz" and full.n_feet == 4 and full.J_z.shape[-2] == 12
+    assert full.axes == "xyz" and full.n_feet == 4 and full.J_z.shape[-2:] == (12, robot.nu)
 
 
 def test_observer_inputs_errors(robot, sims):

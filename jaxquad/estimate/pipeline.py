@@ -4,8 +4,9 @@ Per sample k (dt = t_k - t_{k-1}):
   1. joint velocities: the log's qd, or the causal differentiating filter on q;
   2. attitude: the log's quat_wxyz, or the Mahony filter on gyro and accelerometer;
   3. contacts: ground truth, the robot's sensor flags, or the momentum observer (plain or mixed;
-     by default it estimates full 3D foot forces and thresholds their z components, with the
-     model's joint damping and friction in tau_bar: `jaxquad.dynamics.momentum_terms`);
+     by default on the actuated joints' momentum rows, estimating full 3D foot forces and
+     thresholding their z components, with the model's joint damping and friction in tau_bar:
+     `jaxquad.dynamics.momentum_terms`);
   4. foot positions and velocities in the base frame from the MJX model (jaxquad.dynamics:
      forward kinematics and v_base_foot = J(q) qd);
   5. the twist least squares (kernels.body_twist) on the stance feet and the gyro;
@@ -81,8 +82,9 @@ class PipelineConfig:
     has_attitude: bool = True  # use RobotInputs.quat_wxyz, else run the attitude filter
     soft_contacts: bool = False  # observer: weight feet by contact_soft instead of 0/1
     # observer rows: "full" = every generalized coordinate, floating base included (the paper);
-    # "joints" = the actuated joints only, insensitive to errors in the estimated base velocity.
-    observer_rows: str = "full"
+    # "joints" = the actuated joints only, insensitive to errors in the estimated base velocity (the
+    # previous leg-odometry twist, whose errors the full rows read as foot forces of tens of newtons).
+    observer_rows: str = "joints"
     # observer force axes: "xyz" = full foot forces, z components thresholded (a z-only observer
     # reads the stance feet's tangential friction forces as z forces, on every foot); "z" = z only.
     observer_axes: str = "xyz"

@@ -2,8 +2,8 @@
 
 Structure. Contact quality depends on the observer alone, so the observer inputs (p, tau_bar, J_z
 per robot and sample; as in the pipeline's default, tau_bar includes the model's joint damping and
-friction and J_z holds the x, y and z Jacobian rows of each foot, of which only the z forces are
-post-processed and scored) are computed once per log (`observer_inputs`: MJX `momentum_terms` under
+friction, J_z holds the x, y and z Jacobian rows of each foot, of which only the z forces are
+post-processed and scored, and only the actuated joints' coordinates are kept) are computed once per log (`observer_inputs`: MJX `momentum_terms` under
 jit/vmap) and each configuration then runs only the observer's `lax.scan`: configurations on one
 vmap axis, robots on another, configurations in fixed-size chunks to bound memory.
 
@@ -13,6 +13,9 @@ gyro in the base frame. The base linear velocity is the backward difference of g
 (world frame): the pipeline takes it from its own leg odometry, which depends on the contacts being
 estimated, so tuning takes it from ground truth and every configuration sees the same inputs (the
 half-sample lag of the backward difference is close to the pipeline's use of the previous twist).
+On the joint rows (the default) the base velocity enters only through the legs' inertial coupling;
+on the full rows the odometry's velocity errors dominate the pipeline's forces, which tuning on the
+true velocity does not see.
 As in the pipeline, the first sample and the samples after a gap (dt > max_gap_s) restart p_hat at
 p, and a step with a saturated or non-finite torque is skipped (state held).
 
@@ -65,9 +68,9 @@ PARAM_KEYS = ("mode", "bandwidth", "alpha", "threshold_on", "threshold_off", "f_
 class ObserverInputs(eqx.Module):
     """Observer inputs of one robot per sample (a fleet adds a leading robot axis N)."""
 
-    p: Float[Array, "T nv"]  # generalized momentum M v
-    tau_bar: Float[Array, "T nv"]  # S^T tau + C^T v - g
-    J_z: Float[Array, "T R nv"]  # world rows of the foot Jacobians (m per unit of qvel), `axes` per foot
+    p: Float[Array, "T n"]  # generalized momentum M v (n = nv, or nu for the joint rows)
+    tau_bar: Float[Array, "T n"]  # S^T tau + C^T v - g (+ passive joint forces)
+    J_z: Float[Array, "T R n"]  # world rows of the foot Jacobians (m per unit of qvel), `axes` per foot
     dt: Float[Array, "T"]  # s; NaN where the step is skipped (first sample, gap, bad torque)
     restart: Bool[Array, "T"]  # p_hat restarts at p (first sample, after a gap)
     axes: str = eqx.field(static=True, default="z")  # "z" (R = F) or "xyz" (R = 3 F, row 3 f + a)
@@ -118,14 +121,18 @@ def _momentum_fn(robot, axes: str, passive: bool):
 
 def observer_inputs(
     robot, log: dict, max_gap_s: float = 0.05, torque_saturation: float = 0.99, chunk: int = 4096,
-    axes: str = "xyz", passive: bool = True,
+    axes: str = "xyz", passive: bool = True, rows: str = "joints",
 ) -> tuple[ObserverInputs, ContactTruth, np.ndarray]:
     """Observer inputs and ground truth of every robot of a log (leading axis N; a single log is a
     fleet of one), and the sample times t (T,) in s. Samples go through MJX in chunks of `chunk`.
     axes: force rows per foot, "xyz" (full foot forces, the default) or "z"; passive: tau_bar with
-    the model's joint damping and friction (as PipelineConfig.observer_axes / observer_passive)."""
+    the model's joint damping and friction; rows: the observer's generalized coordinates, "joints"
+    (the actuated joints) or "full" (floating base included). All three as the pipeline's
+    PipelineConfig.observer_axes / observer_passive / observer_rows, whose defaults they share."""
     if axes not in ("z", "xyz"):
         raise ValueError(f"axes must be 'z' or 'xyz', got {axes!r}")
+    if rows not in ("joints", "full"):
+        raise ValueError(f"rows must be 'joints' or 'full', got {rows!r}")
     need = [k for k in ("tau", "qd", "gt_pose", "gt_contact", "gt_force") if k not in log]
     if need:
         raise ValueError(f"tuning needs {need} in the log (joint torques, joint velocities and ground truth)")
@@ -171,6 +178,9 @@ def observer_inputs(
         piece = [np.pad(a, ((0, pad), (0, 0)), mode="edge") for a in piece]  # one compiled size
         parts.append(jax.tree.map(lambda a: np.asarray(a)[: chunk - pad], fn(*piece)))
     p, tau_bar, J_z = (np.concatenate(x).reshape(n, T, *x[0].shape[1:]) for x in zip(*parts))
+    if rows == "joints":
+        dofs = np.asarray(robot.dof_adr)
+        p, tau_bar, J_z = p[..., dofs], tau_bar[..., dofs], J_z[..., dofs]
 
     first = np.arange(T) == 0
     gap = ~first & ~((dt > 0) & (dt <= max_gap_s))
