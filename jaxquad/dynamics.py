@@ -135,6 +135,8 @@ def passive_forces(
     MuJoCo applies friction loss as a constraint: a force of magnitude up to `frictionloss` opposing
     the velocity at the end of the step, any value in between while the joint sticks. The tanh is its
     smooth stand-in (rad/s or m/s, > 0); it reaches 76% of the friction level at `friction_velocity`.
+    The default 0.5 rad/s follows the mean constraint force against joint speed of the built-in
+    models at their 4 ms step (about 40% of the level at 0.2 rad/s, 80% at 0.6 rad/s).
     """
     return _passive(m, _position_data(m, qpos), qvel, friction_velocity)
 
