@@ -28,6 +28,7 @@ import mujoco
 import numpy as np
 from jaxtyping import Array, Float
 from jaxquad._mjx import mjx
+from jaxquad.kernels._rotations import quat_exp, quat_multiply
 
 from jaxquad.robots import Robot
 
@@ -102,9 +103,9 @@ def integrate_pos(
         qa, va = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
         if jtype == mujoco.mjtJoint.mjJNT_FREE:
             parts.append(qpos[qa : qa + 3] + t * qvel[va : va + 3])
-            parts.append(_quat_mul(qpos[qa + 3 : qa + 7], _quat_exp(t * qvel[va + 3 : va + 6])))
+            parts.append(quat_multiply(qpos[qa + 3 : qa + 7], quat_exp(t * qvel[va + 3 : va + 6])))
         elif jtype == mujoco.mjtJoint.mjJNT_BALL:
-            parts.append(_quat_mul(qpos[qa : qa + 4], _quat_exp(t * qvel[va : va + 3])))
+            parts.append(quat_multiply(qpos[qa : qa + 4], quat_exp(t * qvel[va : va + 3])))
         else:
             parts.append(qpos[qa : qa + 1] + t * qvel[va : va + 1])
     return jnp.concatenate(parts)
@@ -253,20 +254,3 @@ def foot_jacobians_world(
     """World-frame point Jacobians of the foot sites (4, 3, nv), as MuJoCo's `mj_jacSite`: columns
     follow qvel's convention (free-joint angular columns act on the base-frame rate)."""
     return leg_kinematics(robot, qpos, jnp.zeros(robot.nv, qpos.dtype), m).J_world_foot
-
-
-def _quat_mul(a: Array, b: Array) -> Array:
-    w1, v1, w2, v2 = a[0], a[1:], b[0], b[1:]
-    return jnp.concatenate([(w1 * w2 - v1 @ v2)[None], w1 * v2 + w2 * v1 + jnp.cross(v1, v2)])
-
-
-def _quat_exp(rotvec: Array) -> Array:
-    """Unit quaternion of a rotation vector (rad); series branch near zero keeps gradients finite."""
-    half = 0.5 * rotvec
-    x2 = half @ half
-    small = x2 < 1e-8
-    x2s = jnp.where(small, 1.0, x2)
-    x = jnp.sqrt(x2s)
-    cos = jnp.where(small, 1.0 - x2 / 2.0 + x2 * x2 / 24.0, jnp.cos(x))
-    sinc = jnp.where(small, 1.0 - x2 / 6.0 + x2 * x2 / 120.0, jnp.sin(x) / x)
-    return jnp.concatenate([cos[None], sinc * half])

@@ -22,6 +22,8 @@ import mujoco
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
+from jaxquad.kernels._rotations import quat_to_matrix
+
 from .gait import TROT_OFFSETS, leg_phases, raibert_foothold, swing_position
 from .leg_ik import LegGeometry, knee_branch, leg_fk, leg_ik
 
@@ -293,17 +295,6 @@ def _home_level(gait: Gait, params: GaitParams) -> Float[Array, "4 3"]:
     return gait.p_base_foot_home.at[:, 2].set(z)
 
 
-def _quat_to_mat(q: Float[Array, " 4"]) -> Float[Array, "3 3"]:
-    w, x, y, z = q / jnp.linalg.norm(q)
-    return jnp.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
 def _rp_mat(roll: Float[Array, ""], pitch: Float[Array, ""]) -> Float[Array, "3 3"]:
     cr, sr, cp, sp = jnp.cos(roll), jnp.sin(roll), jnp.cos(pitch), jnp.sin(pitch)
     r_y = jnp.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
@@ -351,7 +342,7 @@ def gait_step(
     command = jnp.where(ok, command, 0.0)
 
     # Base state (free joint: world position, wxyz quaternion; world linear, body angular velocity).
-    R_world_base = _quat_to_mat(qpos[3:7])
+    R_world_base = quat_to_matrix(qpos[3:7])
     roll = jnp.arctan2(R_world_base[2, 1], R_world_base[2, 2])
     pitch = jnp.arctan2(-R_world_base[2, 0], jnp.hypot(R_world_base[2, 1], R_world_base[2, 2]))
     yaw = jnp.arctan2(R_world_base[1, 0], R_world_base[0, 0])

@@ -24,6 +24,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
+from jaxquad.kernels._rotations import quat_exp, quat_multiply
+
 
 def _f32(x) -> Array:
     return jnp.asarray(x, jnp.float32)
@@ -95,26 +97,6 @@ def imu_init(noise: SensorNoise, key: PRNGKeyArray) -> ImuState:
     )
 
 
-def quat_mul(a: Float[Array, " 4"], b: Float[Array, " 4"]) -> Float[Array, " 4"]:
-    """Hamilton product of wxyz quaternions."""
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
-    return jnp.stack(
-        [
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-        ]
-    )
-
-
-def _quat_exp(rotvec: Float[Array, " 3"]) -> Float[Array, " 4"]:
-    # Small-angle safe: sinc form keeps the gradient and value finite at 0.
-    angle = jnp.sqrt(jnp.sum(rotvec**2) + 1e-24)
-    return jnp.concatenate([jnp.cos(angle / 2)[None], 0.5 * jnp.sinc(angle / (2 * jnp.pi)) * rotvec])
-
-
 def imu_step(
     noise: SensorNoise,
     state: ImuState,
@@ -135,8 +117,8 @@ def imu_step(
     gyro = gyro_true + state.gyro_bias + noise.gyro_white * jax.random.normal(k[3], (3,))
     acc = acc_true + state.acc_bias + noise.acc_white * jax.random.normal(k[4], (3,))
     tilt = noise.tilt_white * jax.random.normal(k[5], (3,)) * jnp.array([1.0, 1.0, 0.0])
-    q_drift = _quat_exp(jnp.array([0.0, 0.0, 1.0]) * state.yaw_drift)
-    quat = quat_mul(q_drift, quat_mul(quat_world_base, _quat_exp(tilt)))
+    q_drift = quat_exp(jnp.array([0.0, 0.0, 1.0]) * state.yaw_drift)
+    quat = quat_multiply(q_drift, quat_multiply(quat_world_base, quat_exp(tilt)))
     quat = quat / jnp.linalg.norm(quat)
     return gyro, acc, quat * jnp.sign(quat[0] + 1e-12), state
 

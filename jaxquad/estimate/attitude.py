@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from jaxquad.estimate._rot import quat_exp, quat_from_roll_pitch_yaw, quat_multiply, quat_to_matrix
+from jaxquad.kernels._rotations import quat_exp, quat_from_roll_pitch_yaw, quat_multiply, quat_to_matrix
 
 GRAVITY = 9.81  # m/s^2
 

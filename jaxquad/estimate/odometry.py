@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from jaxquad.estimate._rot import quat_exp, quat_multiply, quat_to_matrix, skew, so3_exp_coefficients
+from jaxquad.kernels._rotations import quat_exp, quat_multiply, quat_to_matrix, skew, so3_exp_coefficients
 
 
 class Pose(eqx.Module):

@@ -39,7 +39,7 @@ from jaxtyping import Array, Bool, Float
 from jaxquad import dynamics
 from jaxquad.estimate import attitude as att
 from jaxquad.estimate import differentiate as dif
-from jaxquad.estimate._rot import quat_multiply, quat_to_matrix
+from jaxquad.kernels._rotations import quat_multiply, quat_to_matrix
 from jaxquad.estimate.odometry import Pose, odometry_step
 from jaxquad.kernels import ContactEstimate, ContactObserver, ObserverParams, body_twist
 

@@ -1,4 +1,4 @@
-"""Rotations shared by the attitude filter and the odometry: quaternions are (w, x, y, z)."""
+"""Quaternion and rotation helpers shared by the estimators, the dynamics and the simulator: (w, x, y, z)."""
 
 from __future__ import annotations
 
