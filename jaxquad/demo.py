@@ -41,17 +41,9 @@ RANGE_MIN, RANGE_MAX = 0.0, 10.0  # m, the paper's simulation scan limits
 HIT_TOLERANCE = 0.2  # m (4 map cells): a scan end point this close to an occupied cell agrees with the map
 
 
-def _resolution(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"resolution must look like 160x120, got {text!r}") from None
-    if w < 8 or h < 8:
-        raise argparse.ArgumentTypeError(f"resolution too small: {text}")
-    return w, h
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from jaxquad.sim.cli import parse_resolution
+
     parser.add_argument("--out", default="jaxquad-demo", help="report folder (replaced if it holds an earlier demo)")
     parser.add_argument("--robots", type=int, default=4, help="fleet size (default 4)")
     parser.add_argument("--seconds", type=float, default=20.0, help="simulated time per robot (default 20)")
@@ -59,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--world", default="house", choices=["house", "warehouse"])
     parser.add_argument("--style", default="aggressive", choices=["calm", "aggressive"])
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--resolution", type=_resolution, default=(160, 120), help="depth image WxH (default 160x120)")
+    parser.add_argument("--resolution", type=parse_resolution, default=(160, 120), help="depth image WxH (default 160x120)")
 
 
 # ------------------------------------------------------------------------------------- scans

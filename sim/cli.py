@@ -8,12 +8,13 @@ import tempfile
 from pathlib import Path
 
 
-def _resolution(text: str) -> tuple[int, int]:
+def parse_resolution(text: str) -> tuple[int, int]:
+    """argparse type for a depth image size WxH in pixels, e.g. 160x120."""
     try:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"resolution must look like 160x120, got {text!r}") from None
-    if w < 2 or h < 2:
+    if w < 8 or h < 8:
         raise argparse.ArgumentTypeError(f"resolution too small: {text}")
     return w, h
 
@@ -28,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", required=True, help="output folder")
     parser.add_argument("--no-depth", action="store_true", help="skip the depth camera")
-    parser.add_argument("--resolution", type=_resolution, default=(160, 120), help="depth image WxH (default 160x120)")
+    parser.add_argument("--resolution", type=parse_resolution, default=(160, 120), help="depth image WxH (default 160x120)")
     parser.add_argument("--no-randomize", action="store_true", help="nominal masses, friction, motors and noise levels")
 
 
