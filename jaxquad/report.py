@@ -66,6 +66,16 @@ def scan_points_world(ranges: np.ndarray, bearings: np.ndarray, xy_camera: np.nd
     return np.asarray(xy_camera)[None, :] + ranges[ok, None] * np.stack([np.cos(a), np.sin(a)], axis=-1)
 
 
+def _zoom(ax, points: np.ndarray, margin: float) -> None:
+    """Square axis limits around the finite (M, 2) points, with a margin (m) and at least 3 m wide."""
+    points = points[np.all(np.isfinite(points), axis=1)]
+    lo, hi = points.min(0), points.max(0)
+    half = max(float(np.max(hi - lo)) / 2 + margin, 1.5)
+    mid = (lo + hi) / 2
+    ax.set_xlim(mid[0] - half, mid[0] + half)
+    ax.set_ylim(mid[1] - half, mid[1] + half)
+
+
 def _draw_map(ax, occ) -> None:
     """Occupied cells black, free white, unknown grey, in world metres."""
     rows, cols = occ.grid.shape
@@ -100,13 +110,7 @@ def plot_trajectories(
             ax.plot(p[:, 0], p[:, 1], color=COLORS.get(label), lw=1.3, label=f"leg odometry ({label} contacts)")
         ax.plot(*gt[0], "o", color="black", ms=6, label="start")
         # Zoom on the paths with a margin, keeping the map's scale.
-        every = np.concatenate([gt] + [np.asarray(p[i]) for p in xy_est.values()])
-        every = every[np.all(np.isfinite(every), axis=1)]
-        lo, hi = every.min(0), every.max(0)
-        half = max(float(np.max(hi - lo)) / 2 + 0.75, 1.5)
-        mid = (lo + hi) / 2
-        ax.set_xlim(mid[0] - half, mid[0] + half)
-        ax.set_ylim(mid[1] - half, mid[1] + half)
+        _zoom(ax, np.concatenate([gt] + [np.asarray(p[i]) for p in xy_est.values()]), margin=0.75)
         ax.set_aspect("equal")
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
@@ -196,12 +200,7 @@ def plot_scan_frame(
             ax.plot(pts[:, 0], pts[:, 1], ".", ms=3, color=COLORS.get(label), label=f"{label} scan")
         if xy_camera is not None:
             ax.plot(*xy_camera, "^", color="black", ms=8, label="camera")
-            span = np.concatenate(pts_all + [np.asarray(xy_camera)[None]]) if pts_all else np.asarray(xy_camera)[None]
-            lo, hi = span.min(0), span.max(0)
-            half = max(float(np.max(hi - lo)) / 2 + 0.5, 1.5)
-            mid = (lo + hi) / 2
-            ax.set_xlim(mid[0] - half, mid[0] + half)
-            ax.set_ylim(mid[1] - half, mid[1] + half)
+            _zoom(ax, np.concatenate(pts_all + [np.asarray(xy_camera)[None]]), margin=0.5)
         ax.set_aspect("equal")
         ax.legend(fontsize=8, loc="best")
         ax.set_title("scans in the map frame (ground-truth pose)", fontsize=10)
