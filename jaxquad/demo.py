@@ -85,14 +85,13 @@ def _frame_samples(t: np.ndarray, depth_t: np.ndarray) -> np.ndarray:
 
 def _camera_pose_2d(gt_pose: np.ndarray, T_base_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World x y (m) of the camera and the base's heading (rad) from gt_pose (..., 7) [p, wxyz]."""
-    w, x, y, z = np.moveaxis(np.asarray(gt_pose[..., 3:], np.float64), -1, 0)
-    # First two rows of R_world_base (unit quaternion), applied to the camera's mount offset.
-    R_xy = np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-    ], -2)  # fmt: skip
-    xy = gt_pose[..., :2] + R_xy @ T_base_camera[:3, 3]
-    return xy, np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    import jax.numpy as jnp
+
+    from jaxquad.kernels.lie import SO3, yaw_of
+
+    q = jnp.asarray(gt_pose[..., 3:], jnp.float32)
+    xy = gt_pose[..., :2] + np.asarray(SO3(q).apply(jnp.asarray(T_base_camera[:3, 3], jnp.float32)))[..., :2]
+    return xy, np.asarray(yaw_of(q))
 
 
 def load_scans(folder: Path, n: int) -> dict[str, np.ndarray]:

@@ -28,7 +28,7 @@ import mujoco
 import numpy as np
 from jaxtyping import Array, Float
 from jaxquad._mjx import mjx
-from jaxquad.kernels._rotations import quat_exp, quat_multiply
+from jaxquad.kernels.lie import SO3
 
 from jaxquad.robots import Robot
 
@@ -103,9 +103,9 @@ def integrate_pos(
         qa, va = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
         if jtype == mujoco.mjtJoint.mjJNT_FREE:
             parts.append(qpos[qa : qa + 3] + t * qvel[va : va + 3])
-            parts.append(quat_multiply(qpos[qa + 3 : qa + 7], quat_exp(t * qvel[va + 3 : va + 6])))
+            parts.append((SO3(qpos[qa + 3 : qa + 7]) @ SO3.exp(t * qvel[va + 3 : va + 6])).wxyz)
         elif jtype == mujoco.mjtJoint.mjJNT_BALL:
-            parts.append(quat_multiply(qpos[qa : qa + 4], quat_exp(t * qvel[va : va + 3])))
+            parts.append((SO3(qpos[qa : qa + 4]) @ SO3.exp(t * qvel[va : va + 3])).wxyz)
         else:
             parts.append(qpos[qa : qa + 1] + t * qvel[va : va + 1])
     return jnp.concatenate(parts)

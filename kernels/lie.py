@@ -4,6 +4,11 @@ jaxlie leaves out. Quaternions are (w, x, y, z) everywhere in jaxquad, as in jax
 jaxlie (pytree dataclasses around one parameter array; exp/log/adjoint/jlog with Taylor branches so
 values and gradients stay finite at zero angle) is used directly: `SO3(wxyz) @ SO3(...)`,
 `SE2.from_xy_theta(x, y, theta)`, `SO3.exp(phi).as_matrix()`. Leading batch axes and `vmap` both work.
+
+One exception, measured: jaxlie's `SE3.exp` replaces V(phi) by R(phi) below its small-angle threshold,
+so the derivative of the translation w.r.t. the rotation at phi = 0 comes out 1 instead of 1/2
+(integrating a body twist and differentiating through it is what tuning does). `se3_exp` here keeps
+the proper series of V and returns a jaxlie `SE3`.
 """
 
 from __future__ import annotations
@@ -12,8 +17,11 @@ import jax.numpy as jnp
 from jaxlie import SE2, SE3, SO2, SO3
 from jaxtyping import Array, Float
 
+# Below this squared angle the closed forms of V(phi) divide by ~0; their Taylor series take over.
+_SMALL_ANGLE_SQ = 1e-6
+
 __all__ = [
-    "SE2", "SE3", "SO2", "SO3", "skew", "rotation_matrix", "quat_from_rpy", "roll_pitch",
+    "SE2", "SE3", "SO2", "SO3", "R_level_base", "se3_exp", "skew", "rotation_matrix", "quat_from_rpy", "roll_pitch",
     "wrap_angle", "yaw_of",
 ]  # fmt: skip
 
@@ -22,6 +30,20 @@ def skew(w: Float[Array, "3"]) -> Float[Array, "3 3"]:
     """Matrix S(w) with S(w) x = w x x."""
     zero = jnp.zeros_like(w[0])
     return jnp.array([[zero, -w[2], w[1]], [w[2], zero, -w[0]], [-w[1], w[0], zero]], dtype=w.dtype)
+
+
+def se3_exp(v: Float[Array, "3"], phi: Float[Array, "3"]) -> SE3:
+    """exp of the twist (v, phi) (m, rad): translation V(phi) v, rotation exp(phi); finite values
+    and exact first derivatives at phi = 0."""
+    theta_sq = phi @ phi
+    small = theta_sq < _SMALL_ANGLE_SQ
+    t2 = jnp.where(small, 1.0, theta_sq)
+    t = jnp.sqrt(t2)
+    b = jnp.where(small, 0.5 - theta_sq / 24.0, (1.0 - jnp.cos(t)) / t2)  # (1 - cos t) / t^2
+    c = jnp.where(small, 1.0 / 6.0 - theta_sq / 120.0, (t - jnp.sin(t)) / (t2 * t))  # (t - sin t) / t^3
+    s = skew(phi)
+    p = v + b * (s @ v) + c * (s @ (s @ v))
+    return SE3.from_rotation_and_translation(SO3.exp(phi), p)
 
 
 def rotation_matrix(q_wxyz: Float[Array, "4"]) -> Float[Array, "3 3"]:
@@ -34,12 +56,12 @@ def quat_from_rpy(roll: Float[Array, ""], pitch: Float[Array, ""], yaw: Float[Ar
     return SO3.from_rpy_radians(roll, pitch, yaw).wxyz
 
 
-def roll_pitch(q_wxyz: Float[Array, "4"]) -> tuple[Float[Array, ""], Float[Array, ""]]:
+def roll_pitch(q_wxyz: Float[Array, "*B 4"]) -> tuple[Float[Array, "*B"], Float[Array, "*B"]]:
     """ZYX-Euler roll and pitch (rad) of world-from-base q, read from the world z axis in the base frame.
 
-    Uses only R[2, :], so it is exact for any yaw and needs no normalization of q beyond a scale.
+    Uses only R[2, :], so it is exact for any yaw; q may carry any scale and leading batch axes.
     """
-    w, x, y, z = q_wxyz / jnp.linalg.norm(q_wxyz)
+    w, x, y, z = jnp.moveaxis(q_wxyz / jnp.linalg.norm(q_wxyz, axis=-1, keepdims=True), -1, 0)
     r20 = 2.0 * (x * z - w * y)
     r21 = 2.0 * (y * z + w * x)
     r22 = 1.0 - 2.0 * (x * x + y * y)
@@ -48,10 +70,15 @@ def roll_pitch(q_wxyz: Float[Array, "4"]) -> tuple[Float[Array, ""], Float[Array
     return roll, pitch
 
 
-def yaw_of(q_wxyz: Float[Array, "4"]) -> Float[Array, ""]:
-    """ZYX-Euler yaw (rad) of world-from-base q."""
-    w, x, y, z = q_wxyz
+def yaw_of(q_wxyz: Float[Array, "*B 4"]) -> Float[Array, "*B"]:
+    """ZYX-Euler yaw (rad) of world-from-base q (any scale, leading batch axes)."""
+    w, x, y, z = jnp.moveaxis(q_wxyz, -1, 0)
     return jnp.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def R_level_base(roll: Float[Array, ""], pitch: Float[Array, ""]) -> Float[Array, "3 3"]:
+    """R_y(pitch) R_x(roll): base frame -> the gravity-levelled frame that shares the base's heading."""
+    return (SO3.from_y_radians(pitch) @ SO3.from_x_radians(roll)).as_matrix()
 
 
 def wrap_angle(a: Float[Array, "*batch"]) -> Float[Array, "*batch"]:

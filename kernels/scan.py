@@ -25,6 +25,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from jaxquad.kernels.lie import R_level_base
+
 
 class CameraIntrinsics(eqx.Module):
     """Pinhole intrinsics in pixels (traced leaves: sweeps never recompile)."""
@@ -145,15 +147,6 @@ def baseline_scan(
     return _column_scan(z, good, u, fx, cx, range_min, range_max)
 
 
-def _R_level_base(roll, pitch):
-    """R_y(pitch) R_x(roll): base frame -> gravity-levelled frame sharing the base's heading."""
-    cr, sr, cp, sp = jnp.cos(roll), jnp.sin(roll), jnp.cos(pitch), jnp.sin(pitch)
-    one, zero = jnp.ones_like(cr), jnp.zeros_like(cr)
-    R_x = jnp.array([[one, zero, zero], [zero, cr, -sr], [zero, sr, cr]])
-    R_y = jnp.array([[cp, zero, sp], [zero, one, zero], [-sp, zero, cp]])
-    return R_y @ R_x
-
-
 def level_scan(
     depth: Float[Array, "H W"],
     intrinsics: Intrinsics,
@@ -191,7 +184,7 @@ def level_scan(
     z, good = _band_depth(depth, rows)
     p_cam = jnp.stack([(u - cx)[None, :] * z / fx, (rows - cy) * z / fy, z], axis=-1)
     p_base = jnp.stack([p_cam[..., 2], -p_cam[..., 0], -p_cam[..., 1]], axis=-1)
-    p_level = p_base @ _R_level_base(roll, pitch).T
+    p_level = p_base @ R_level_base(roll, pitch).T
     r = jnp.hypot(p_level[..., 0], p_level[..., 1])
     bearing = jnp.arctan2(p_level[..., 1], p_level[..., 0])
 

@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
+from jaxquad.kernels.lie import yaw_of
 from jaxquad.kernels.raycast import Boxes, cast_depth, pinhole_rays
 
 from . import sensors as S
@@ -274,7 +275,7 @@ def _make_functions(fleet: Fleet, gyro_adr: int, acc_adr: int):
     def physics_step(model, setup: RobotSetup, s: RobotState) -> RobotState:
         d = s.data
         quat = d.qpos[qa + 3 : qa + 7]
-        yaw = jnp.arctan2(2 * (quat[0] * quat[3] + quat[1] * quat[2]), 1 - 2 * (quat[2] ** 2 + quat[3] ** 2))
+        yaw = yaw_of(quat)
         pose = jnp.stack([d.qpos[qa], d.qpos[qa + 1], yaw])
         cmd, route, _ = route_step(setup.route_params, s.route, setup.waypoints, pose)
         tau, g = gait_step(gait, setup.gait_params, s.gait, d.qpos, d.qvel, cmd, s.t, dt)

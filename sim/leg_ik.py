@@ -12,6 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
+from jaxquad.kernels.lie import SO3, wrap_angle
+
 # Keeps the solution off the fully stretched / fully folded singularities (m).
 _REACH_MARGIN = 1e-3
 
@@ -33,26 +35,12 @@ class LegGeometry(eqx.Module):
     q_max: Float[Array, "L 3"]
 
 
-def _rot_x(a: Float[Array, "..."], v: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
-    c, s = jnp.cos(a), jnp.sin(a)
-    return jnp.stack([v[..., 0], c * v[..., 1] - s * v[..., 2], s * v[..., 1] + c * v[..., 2]], -1)
-
-
-def _rot_y(a: Float[Array, "..."], v: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
-    c, s = jnp.cos(a), jnp.sin(a)
-    return jnp.stack([c * v[..., 0] + s * v[..., 2], v[..., 1], -s * v[..., 0] + c * v[..., 2]], -1)
-
-
-def _wrap(a: Float[Array, "..."]) -> Float[Array, "..."]:
-    return jnp.arctan2(jnp.sin(a), jnp.cos(a))
-
-
 def leg_fk(geom: LegGeometry, q_leg: Float[Array, "L 3"]) -> Float[Array, "L 3"]:
     """Foot centres in the trunk frame for joint angles (abduction, thigh, knee) in rad."""
     angle = geom.axis_sign * q_leg
-    w = geom.d_thigh_knee + _rot_y(angle[..., 2], geom.d_knee_foot)
-    v = geom.d_hip_thigh + _rot_y(angle[..., 1], w)
-    return geom.p_trunk_hip + _rot_x(angle[..., 0], v)
+    w = geom.d_thigh_knee + SO3.from_y_radians(angle[..., 2]).apply(geom.d_knee_foot)
+    v = geom.d_hip_thigh + SO3.from_y_radians(angle[..., 1]).apply(w)
+    return geom.p_trunk_hip + SO3.from_x_radians(angle[..., 0]).apply(v)
 
 
 def leg_ik(
@@ -89,7 +77,7 @@ def leg_ik(
     wk_x = d2[..., 0] + jnp.sin(knee) * d3[..., 2] + jnp.cos(knee) * d3[..., 0]
     thigh = jnp.arctan2(w_x, w_z) - jnp.arctan2(wk_x, wk_z)
 
-    angle = _wrap(jnp.stack([abd, thigh, knee], -1))
+    angle = wrap_angle(jnp.stack([abd, thigh, knee], -1))
     q = jnp.clip(geom.axis_sign * angle, geom.q_min, geom.q_max)
     reachable = inside_abd & (r >= r_min) & (r <= r_max)
     return q, reachable

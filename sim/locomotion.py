@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from jaxquad.kernels._rotations import quat_to_matrix
+from jaxquad.kernels.lie import SO3, R_level_base, roll_pitch, yaw_of
 
 from .gait import TROT_OFFSETS, leg_phases, raibert_foothold, swing_position
 from .leg_ik import LegGeometry, knee_branch, leg_fk, leg_ik
@@ -295,18 +295,6 @@ def _home_level(gait: Gait, params: GaitParams) -> Float[Array, "4 3"]:
     return gait.p_base_foot_home.at[:, 2].set(z)
 
 
-def _rp_mat(roll: Float[Array, ""], pitch: Float[Array, ""]) -> Float[Array, "3 3"]:
-    cr, sr, cp, sp = jnp.cos(roll), jnp.sin(roll), jnp.cos(pitch), jnp.sin(pitch)
-    r_y = jnp.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
-    r_x = jnp.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
-    return r_y @ r_x
-
-
-def _rot_y_mat(a: Float[Array, ""]) -> Float[Array, "3 3"]:
-    c, s = jnp.cos(a), jnp.sin(a)
-    return jnp.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
 def base_to_leg_trunk(
     gait: Gait, p_base_foot: Float[Array, "4 3"], q_spine: Float[Array, ""]
 ) -> Float[Array, "4 3"]:
@@ -315,7 +303,7 @@ def base_to_leg_trunk(
     Legs on the rear trunk of a spined robot see the point rotated back by the spine angle (rad)
     about the spine anchor; the other legs' trunk is the base itself.
     """
-    R_spine = _rot_y_mat(gait.spine_sign * q_spine)
+    R_spine = SO3.from_y_radians(gait.spine_sign * q_spine).as_matrix()
     p_rear = gait.p_base_spine + (p_base_foot - gait.p_base_spine) @ R_spine  # rows: R^T p
     return jnp.where(jnp.array(gait.on_spine)[:, None], p_rear, p_base_foot)
 
@@ -342,10 +330,8 @@ def gait_step(
     command = jnp.where(ok, command, 0.0)
 
     # Base state (free joint: world position, wxyz quaternion; world linear, body angular velocity).
-    R_world_base = quat_to_matrix(qpos[3:7])
-    roll = jnp.arctan2(R_world_base[2, 1], R_world_base[2, 2])
-    pitch = jnp.arctan2(-R_world_base[2, 0], jnp.hypot(R_world_base[2, 1], R_world_base[2, 2]))
-    yaw = jnp.arctan2(R_world_base[1, 0], R_world_base[0, 0])
+    roll, pitch = roll_pitch(qpos[3:7])
+    yaw = yaw_of(qpos[3:7])
     cy, sy = jnp.cos(yaw), jnp.sin(yaw)
     v_level = jnp.array([cy * qvel[0] + sy * qvel[1], -sy * qvel[0] + cy * qvel[1]])
 
@@ -386,12 +372,12 @@ def gait_step(
     pitch_des = params.pitch_amp * jnp.cos(w)
     roll_cmd = roll_des + params.k_attitude * (roll_des - roll)
     pitch_cmd = pitch_des + params.k_attitude * (pitch_des - pitch)
-    p_base_foot = p_level @ _rp_mat(roll_cmd, pitch_cmd)  # rows: R^T p
+    p_base_foot = p_level @ R_level_base(roll_cmd, pitch_cmd)  # rows: R^T p
 
     # Spine: swing with the trot; rear feet expressed in the rear trunk via the measured angle.
     on_spine = jnp.array(gait.on_spine)[:, None]
     q_spine = qpos[gait.spine_qpos] if gait.has_spine else jnp.zeros(())
-    R_spine = _rot_y_mat(gait.spine_sign * q_spine)
+    R_spine = SO3.from_y_radians(gait.spine_sign * q_spine).as_matrix()
     p_trunk_foot = base_to_leg_trunk(gait, p_base_foot, q_spine)
 
     q_des, _ = leg_ik(gait.legs, p_trunk_foot)

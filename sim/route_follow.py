@@ -6,6 +6,8 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from jaxquad.kernels.lie import wrap_angle
+
 
 class RouteParams(eqx.Module):
     """Per-robot follower numbers (traced leaves, so a fleet can randomize them under vmap)."""
@@ -80,8 +82,7 @@ def route_step(
     )
 
     d = goal - p
-    err = jnp.arctan2(d[1], d[0]) - yaw
-    err = jnp.arctan2(jnp.sin(err), jnp.cos(err))
+    err = wrap_angle(jnp.arctan2(d[1], d[0]) - yaw)
     forward = params.v_max * jnp.clip(jnp.cos(err), 0.0, 1.0) ** 2
     lateral = params.k_lateral * params.v_max * jnp.sin(err)
     yaw_rate = jnp.clip(params.k_yaw * err, -params.yaw_rate_max, params.yaw_rate_max)

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from jaxquad.kernels._rotations import quat_exp, quat_multiply
+from jaxquad.kernels.lie import SO3
 
 
 def _f32(x) -> Array:
@@ -117,8 +117,7 @@ def imu_step(
     gyro = gyro_true + state.gyro_bias + noise.gyro_white * jax.random.normal(k[3], (3,))
     acc = acc_true + state.acc_bias + noise.acc_white * jax.random.normal(k[4], (3,))
     tilt = noise.tilt_white * jax.random.normal(k[5], (3,)) * jnp.array([1.0, 1.0, 0.0])
-    q_drift = quat_exp(jnp.array([0.0, 0.0, 1.0]) * state.yaw_drift)
-    quat = quat_multiply(q_drift, quat_multiply(quat_world_base, quat_exp(tilt)))
+    quat = (SO3.from_z_radians(state.yaw_drift) @ SO3(quat_world_base) @ SO3.exp(tilt)).wxyz
     quat = quat / jnp.linalg.norm(quat)
     return gyro, acc, quat * jnp.sign(quat[0] + 1e-12), state
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from jaxquad.estimate import attitude
-from jaxquad.kernels._rotations import quat_to_matrix
+from jaxquad.kernels.lie import rotation_matrix as quat_to_matrix
 
 G = attitude.GRAVITY
 RATE_HZ = 200.0

@@ -1,6 +1,7 @@
 """The Lie-group helpers against scipy's rotations and closed forms."""
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -36,3 +37,19 @@ def test_wrap_angle():
 def test_so3_exp_gradient_finite_at_zero():
     g = jax.grad(lambda phi: SO3.exp(phi).as_matrix()[0, 1])(np.zeros(3, np.float32))
     assert np.all(np.isfinite(g)) and np.allclose(g, [0, 0, -1], atol=1e-6)
+
+
+def test_se3_exp_matches_scipy_expm_and_has_exact_slope_at_zero():
+    from scipy.linalg import expm
+
+    from jaxquad.kernels.lie import se3_exp
+
+    for v, phi in [(RNG.normal(size=3), RNG.normal(size=3)), (RNG.normal(size=3), 1e-4 * RNG.normal(size=3))]:
+        xi = np.zeros((4, 4))
+        xi[:3, :3] = [[0, -phi[2], phi[1]], [phi[2], 0, -phi[0]], [-phi[1], phi[0], 0]]
+        xi[:3, 3] = v
+        T = se3_exp(jnp.asarray(v, jnp.float32), jnp.asarray(phi, jnp.float32)).as_matrix()
+        assert np.allclose(T, expm(xi), atol=2e-5)
+    # y of exp((1, 0, 0), (0, 0, w)) = (1 - cos w) / w: slope 1/2 at w = 0 (jaxlie's SE3.exp gives 1).
+    slope = jax.grad(lambda w: se3_exp(jnp.array([1.0, 0, 0]), jnp.stack([0.0, 0.0, w])).translation()[1])(0.0)
+    assert np.isclose(slope, 0.5, atol=1e-6)

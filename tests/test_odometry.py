@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from jaxquad.estimate import odometry
-from jaxquad.kernels._rotations import quat_to_matrix
+from jaxquad.kernels.lie import rotation_matrix as quat_to_matrix
 
 IDENTITY = odometry.Pose(p_world_base=jnp.zeros(3), q_world_base=jnp.array([1.0, 0, 0, 0]))
 

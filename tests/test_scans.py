@@ -6,6 +6,7 @@ from scipy.spatial.transform import Rotation
 
 from jaxquad.estimate import scans
 from jaxquad.kernels import stabilized_scan
+from jaxquad.kernels.lie import roll_pitch
 
 K = np.array([[80.0, 0, 39.5], [0, 80.0, 29.5], [0, 0, 1]])
 
@@ -13,7 +14,7 @@ K = np.array([[80.0, 0, 39.5], [0, 80.0, 29.5], [0, 0, 1]])
 def test_roll_pitch_matches_scipy():
     rpy = np.array([[0.1, -0.2, 0.5], [-0.4, 0.3, -2.0], [0.0, 1.2, 3.0]])
     q_xyzw = Rotation.from_euler("ZYX", rpy[:, ::-1]).as_quat()
-    roll, pitch = scans.roll_pitch(jnp.asarray(q_xyzw[:, [3, 0, 1, 2]]))
+    roll, pitch = roll_pitch(jnp.asarray(q_xyzw[:, [3, 0, 1, 2]]))
     np.testing.assert_allclose(np.asarray(roll), rpy[:, 0], atol=1e-6)
     np.testing.assert_allclose(np.asarray(pitch), rpy[:, 1], atol=1e-6)
 

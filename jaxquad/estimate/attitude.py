@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from jaxquad.kernels._rotations import quat_exp, quat_from_roll_pitch_yaw, quat_multiply, quat_to_matrix
+from jaxquad.kernels.lie import SO3, quat_from_rpy, rotation_matrix
 
 GRAVITY = 9.81  # m/s^2
 
@@ -49,7 +49,7 @@ def attitude_from_acc(acc: Float[Array, "3"]) -> Float[Array, "4"]:
     u = jnp.where(ok, acc, jnp.array([0.0, 0.0, 1.0], acc.dtype))
     roll = jnp.arctan2(u[1], u[2])
     pitch = jnp.arctan2(-u[0], jnp.sqrt(u[1] ** 2 + u[2] ** 2))
-    return quat_from_roll_pitch_yaw(roll, pitch, jnp.zeros_like(roll))
+    return quat_from_rpy(roll, pitch, jnp.zeros_like(roll))
 
 
 def init(q_world_base: Float[Array, "4"]) -> AttitudeState:
@@ -72,11 +72,11 @@ def step(
     acc_ok = (acc_sq > 0) & (jnp.abs(acc_norm - GRAVITY) < params.acc_gate * GRAVITY) & gyro_ok
     a_n = jnp.where(acc_ok, acc, 0.0) / acc_norm
 
-    up_base = quat_to_matrix(state.q_world_base)[2]  # R^T e_z
+    up_base = rotation_matrix(state.q_world_base)[2]  # R^T e_z
     err = jnp.where(acc_ok, jnp.cross(a_n, up_base), 0.0)
     dt_used = jnp.where(gyro_ok, dt, 0.0)
     omega = jnp.where(gyro_ok, gyro, 0.0) - state.gyro_bias + params.kp * err
-    q = quat_multiply(state.q_world_base, quat_exp(omega * dt_used))
+    q = (SO3(state.q_world_base) @ SO3.exp(omega * dt_used)).wxyz
     q = q / jnp.linalg.norm(q)
     bias = state.gyro_bias - params.ki * err * dt_used
     return AttitudeState(q_world_base=q, gyro_bias=bias), jnp.stack([gyro_ok, acc_ok])

@@ -15,7 +15,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from jaxquad.kernels._rotations import quat_exp, quat_multiply, quat_to_matrix, skew, so3_exp_coefficients
+from jaxquad.kernels import lie
+from jaxquad.kernels.lie import SO3, rotation_matrix
 
 
 class Pose(eqx.Module):
@@ -29,10 +30,8 @@ def se3_exp(
     v: Float[Array, "3"], phi: Float[Array, "3"]
 ) -> tuple[Float[Array, "3"], Float[Array, "4"]]:
     """Exponential of the twist (v, phi) (m, rad): the translation V(phi) v and quaternion exp(phi)."""
-    s = skew(phi)
-    _, b, c = so3_exp_coefficients(phi @ phi)
-    p = v + b * (s @ v) + c * (s @ (s @ v))
-    return p, quat_exp(phi)
+    T = lie.se3_exp(v, phi)
+    return T.translation(), T.rotation().wxyz
 
 
 def odometry_step(
@@ -50,12 +49,12 @@ def odometry_step(
     ok = jnp.isfinite(dt) & (dt >= 0) & jnp.all(jnp.isfinite(v_base)) & jnp.all(jnp.isfinite(omega_base))
     h = jnp.where(ok, dt, 0.0)
     dp_base, dq = se3_exp(jnp.where(ok, v_base, 0.0) * h, jnp.where(ok, omega_base, 0.0) * h)
-    p = pose.p_world_base + quat_to_matrix(pose.q_world_base) @ dp_base
+    p = pose.p_world_base + rotation_matrix(pose.q_world_base) @ dp_base
     if q_world_base_next is None:
-        q = quat_multiply(pose.q_world_base, dq)
+        q = (SO3(pose.q_world_base) @ SO3(dq)).wxyz
     else:
         q_ok = jnp.all(jnp.isfinite(q_world_base_next))
-        q = jnp.where(q_ok, q_world_base_next, quat_multiply(pose.q_world_base, dq))
+        q = jnp.where(q_ok, q_world_base_next, (SO3(pose.q_world_base) @ SO3(dq)).wxyz)
     return Pose(p_world_base=p, q_world_base=q / jnp.linalg.norm(q))
 
 

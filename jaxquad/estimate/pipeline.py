@@ -39,12 +39,10 @@ from jaxtyping import Array, Bool, Float
 from jaxquad import dynamics
 from jaxquad.estimate import attitude as att
 from jaxquad.estimate import differentiate as dif
-from jaxquad.kernels._rotations import quat_multiply, quat_to_matrix
+from jaxquad.estimate.inputs import CONTACT_SOURCES, R_base_imu, RobotInputs, full_state, gaps, robot_inputs, torque_ok
 from jaxquad.estimate.odometry import Pose, odometry_step
 from jaxquad.kernels import ContactEstimate, ContactObserver, ObserverParams, body_twist
-
-CONTACT_SOURCES = ("truth", "sensor", "observer", "mixed")
-
+from jaxquad.kernels.lie import SO3, rotation_matrix
 
 class PipelineParams(eqx.Module):
     """Every tunable number of the pipeline (traced leaves)."""
@@ -98,22 +96,6 @@ class PipelineConfig:
             raise ValueError(f"observer_rows must be 'full' or 'joints', got {self.observer_rows!r}")
         if self.observer_axes not in ("z", "xyz"):
             raise ValueError(f"observer_axes must be 'z' or 'xyz', got {self.observer_axes!r}")
-
-
-class RobotInputs(eqx.Module):
-    """One robot's log, in the robot model's joint and foot order (a fleet adds a leading axis)."""
-
-    dt: Float[Array, "T"]  # s since the previous sample (0 at sample 0), from float64 stamps
-    q: Float[Array, "T nu"]  # rad
-    qd: Float[Array, "T nu"]  # rad/s (ignored unless config.has_qd)
-    tau: Float[Array, "T nu"]  # N m (observer only)
-    gyro: Float[Array, "T 3"]  # rad/s, IMU frame
-    acc: Float[Array, "T 3"]  # m/s^2, IMU frame
-    quat_wxyz: Float[Array, "T 4"]  # world-from-base (ignored unless config.has_attitude)
-    contact_weight: Float[Array, "T F"]  # in [0, 1] (truth/sensor contacts)
-    valid: Bool[Array, "T"]  # False where the log marks the robot invalid
-    p0_world_base: Float[Array, "3"]  # initial position, m
-    yaw0: Float[Array, ""]  # initial heading (rad) when the attitude comes from the filter
 
 
 class Flags(eqx.Module):
@@ -179,19 +161,6 @@ def vertical_estimate(estimate: ContactEstimate, axes: str) -> ContactEstimate:
     )  # fmt: skip
 
 
-def _R_base_imu(robot) -> np.ndarray:
-    """Rotation of the IMU site in the base frame, at the home configuration (MuJoCo C)."""
-    import mujoco
-
-    m = robot.mj_model
-    d = mujoco.MjData(m)
-    d.qpos[:] = robot.qpos_home
-    mujoco.mj_kinematics(m, d)
-    R_world_base = d.xmat[robot.base_body_id].reshape(3, 3)
-    R_world_imu = d.site_xmat[robot.imu_site_id].reshape(3, 3)
-    return R_world_base.T @ R_world_imu
-
-
 def _hold(ok, new, old):
     return jax.tree.map(lambda a, b: jnp.where(ok, a, b), new, old)
 
@@ -200,17 +169,15 @@ def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs
     """Run the pipeline over one robot's inputs (pure; jit and vmap at the call site)."""
     observer = config.contacts in ("observer", "mixed")
     n_feet = len(robot.foot_names)
-    R_base_imu = jnp.asarray(_R_base_imu(robot), dtype=inputs.gyro.dtype)
-    torque_limit = jnp.asarray(np.where(np.isfinite(robot.torque_limit), robot.torque_limit, np.inf), inputs.tau.dtype)
+    R_imu = jnp.asarray(R_base_imu(robot), dtype=inputs.gyro.dtype)
 
     q0 = jnp.where(jnp.isfinite(inputs.q[0]), inputs.q[0], jnp.asarray(robot.q_home, inputs.q.dtype))
     if config.has_attitude:
         qa0 = inputs.quat_wxyz[0]
         quat0 = jnp.where(jnp.all(jnp.isfinite(qa0)), qa0, jnp.array([1.0, 0.0, 0.0, 0.0]))
     else:
-        quat0 = att.attitude_from_acc(R_base_imu @ inputs.acc[0])
-        half = 0.5 * inputs.yaw0
-        quat0 = quat_multiply(jnp.stack([jnp.cos(half), 0.0 * half, 0.0 * half, jnp.sin(half)]), quat0)
+        quat0 = att.attitude_from_acc(R_imu @ inputs.acc[0])
+        quat0 = (SO3.from_z_radians(inputs.yaw0) @ SO3(quat0)).wxyz
     quat0 = quat0 / jnp.linalg.norm(quat0)
     pose0 = Pose(p_world_base=inputs.p0_world_base, q_world_base=quat0)
 
@@ -238,8 +205,7 @@ def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs
 
     def step(c: _Carry, x):
         dt, q, qd_in, tau, gyro_imu, acc_imu, quat_in, w_in, valid_in = x
-        first = dt == 0  # sample 0: nothing to integrate
-        gap = ~first & ~((dt > 0) & (dt <= params.max_gap_s))
+        first, gap = gaps(dt, params.max_gap_s)  # sample 0: nothing to integrate
         dt_int = jnp.where(first | gap, 0.0, dt)
 
         # 1. joints: hold non-finite readings.
@@ -257,8 +223,8 @@ def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs
 
         # 2. attitude.
         gyro_ok = jnp.all(jnp.isfinite(gyro_imu))
-        gyro = jnp.where(gyro_ok, R_base_imu @ jnp.where(gyro_ok, gyro_imu, 0.0), c.gyro_last)
-        acc = R_base_imu @ acc_imu
+        gyro = jnp.where(gyro_ok, R_imu @ jnp.where(gyro_ok, gyro_imu, 0.0), c.gyro_last)
+        acc = R_imu @ acc_imu
         if config.has_attitude:
             qa_ok = jnp.all(jnp.isfinite(quat_in)) & (jnp.abs(jnp.sum(quat_in**2) - 1.0) < 0.1)
             quat = jnp.where(qa_ok, quat_in, c.pose.q_world_base)
@@ -269,20 +235,13 @@ def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs
             quat = att_state.q_world_base
             bad_imu = ~(used[0] | first) | ~jnp.all(jnp.isfinite(acc_imu))
         quat = quat / jnp.linalg.norm(quat)
-        R_world_base = quat_to_matrix(quat)
+        R_world_base = rotation_matrix(quat)
         fallen = c.fallen | ~valid_in | (R_world_base[2, 2] < jnp.cos(params.fall_tilt_rad))
 
         # 3. contacts.
-        tau_ok = jnp.all(jnp.isfinite(tau)) & jnp.all(jnp.abs(tau) < params.torque_saturation * torque_limit)
+        tau_ok = torque_ok(robot, tau, params.torque_saturation)
         # Full state for the model: base velocity from the last twist (world linear, body angular).
-        qpos = jnp.asarray(robot.qpos_home, q.dtype)
-        qpos = qpos.at[robot.base_qpos_adr : robot.base_qpos_adr + 3].set(c.pose.p_world_base)
-        qpos = qpos.at[robot.base_qpos_adr + 3 : robot.base_qpos_adr + 7].set(quat)
-        qpos = qpos.at[jnp.asarray(robot.qpos_adr)].set(q_use)
-        qvel = jnp.zeros(robot.nv, q.dtype)
-        qvel = qvel.at[robot.base_dof_adr : robot.base_dof_adr + 3].set(R_world_base @ c.v_last)
-        qvel = qvel.at[robot.base_dof_adr + 3 : robot.base_dof_adr + 6].set(gyro)
-        qvel = qvel.at[jnp.asarray(robot.dof_adr)].set(qd_use)
+        qpos, qvel = full_state(robot, c.pose.p_world_base, quat, q_use, R_world_base @ c.v_last, gyro, qd_use)
         if observer:
             tau_obs = jnp.where(tau_ok, tau, 0.0)
             p_mom, tau_bar, J_z = dynamics.momentum_terms(
@@ -372,62 +331,7 @@ def estimate_fleet(robot, config: PipelineConfig, params: PipelineParams, inputs
 
 
 def inputs_from_log(robot, log, contacts: str = "truth") -> tuple[RobotInputs, PipelineConfig]:
-    """RobotInputs with a leading robot axis (a single log becomes a fleet of one) and the static
-    configuration the log allows. Joints are reordered to the model's order by name.
-
-    contacts: "truth" (gt_contact), "sensor" (the log's contact flags, else foot_force above the
-    midpoint of its per-foot 5th and 95th percentiles), "observer" (plain) or "mixed" (needs tau).
-    The initial position and heading come from gt_pose when the log has it, else the origin.
-    """
-    if contacts not in CONTACT_SOURCES:
-        raise ValueError(f"contacts must be one of {', '.join(CONTACT_SOURCES)}, got {contacts!r}")
-    fleet = "fallen" in log
-    lead = (lambda a: np.asarray(a)) if fleet else (lambda a: np.asarray(a)[None])
-    t = np.asarray(log["t"], np.float64)
-    names = [str(n) for n in np.asarray(log["joint_names"])]
-    missing = [j for j in robot.joint_names if j not in names]
-    if missing:
-        raise ValueError(f"log has no joint(s) {missing} of robot {robot.name!r}")
-    order = np.array([names.index(j) for j in robot.joint_names])
-    q = lead(log["q"])[..., order]
-    n, T = q.shape[0], t.shape[0]
-    nan = np.full(q.shape, np.nan)
-    qd = lead(log["qd"])[..., order] if "qd" in log else nan
-    if contacts in ("observer", "mixed") and "tau" not in log:
-        raise ValueError(f"contacts={contacts!r} needs joint torques ('tau') in the log")
-    tau = lead(log["tau"])[..., order] if "tau" in log else nan
-    if contacts == "truth":
-        if "gt_contact" not in log:
-            raise ValueError("contacts='truth' needs 'gt_contact' in the log")
-        weight = lead(log["gt_contact"]).astype(float)
-    elif contacts == "sensor":
-        if "contact" in log:
-            weight = lead(log["contact"]).astype(float)
-        elif "foot_force" in log:
-            f = lead(log["foot_force"]).astype(float)
-            lo, hi = np.nanpercentile(f, 5, axis=1), np.nanpercentile(f, 95, axis=1)
-            weight = np.where(np.isfinite(f), (f > 0.5 * (lo + hi)[:, None]).astype(float), np.nan)
-        else:
-            raise ValueError("contacts='sensor' needs 'contact' or 'foot_force' in the log")
-    else:
-        weight = np.zeros((n, T, len(robot.foot_names)))
-    quat = lead(log["quat_wxyz"]) if "quat_wxyz" in log else np.tile([1.0, 0, 0, 0], (n, T, 1))
-    valid = np.asarray(log["valid"], bool) if fleet else np.ones((1, T), bool)
-    if "gt_pose" in log:
-        gt = lead(log["gt_pose"])[:, 0]
-        p0 = gt[:, :3]
-        w, x, y, z = gt[:, 3:].T
-        yaw0 = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    else:
-        p0, yaw0 = np.zeros((n, 3)), np.zeros(n)
-    f32 = lambda a: jnp.asarray(a, jnp.float32)
-    inputs = RobotInputs(
-        dt=f32(np.broadcast_to(np.diff(t, prepend=t[0]), (n, T))),
-        q=f32(q), qd=f32(qd), tau=f32(tau), gyro=f32(lead(log["gyro"])), acc=f32(lead(log["acc"])),
-        quat_wxyz=f32(quat), contact_weight=f32(weight), valid=jnp.asarray(valid),
-        p0_world_base=f32(p0), yaw0=f32(yaw0),
-    )  # fmt: skip
-    config = PipelineConfig(
-        contacts=contacts, has_qd="qd" in log, has_attitude="quat_wxyz" in log, soft_contacts=False
-    )
+    """`inputs.robot_inputs` of the log (leading robot axis) and the static configuration it allows."""
+    inputs = robot_inputs(robot, log, contacts)
+    config = PipelineConfig(contacts=contacts, has_qd="qd" in log, has_attitude="quat_wxyz" in log)
     return inputs, config

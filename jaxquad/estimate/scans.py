@@ -17,6 +17,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from jaxquad.kernels import CameraIntrinsics, baseline_scan, stabilized_scan
+from jaxquad.kernels.lie import roll_pitch
 
 
 class LogScans(eqx.Module):
@@ -27,14 +28,6 @@ class LogScans(eqx.Module):
     bearings: Float[Array, "W"]  # rad, counter-clockwise from forward
     roll: Float[Array, "F"]  # rad, attitude used per frame
     pitch: Float[Array, "F"]
-
-
-def roll_pitch(q_world_base: Float[Array, "*B 4"]) -> tuple[Array, Array]:
-    """ZYX roll and pitch (rad) of w x y z quaternions: R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    w, x, y, z = jnp.moveaxis(q_world_base, -1, 0)
-    roll = jnp.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = jnp.arcsin(jnp.clip(2 * (w * y - z * x), -1.0, 1.0))
-    return roll, pitch
 
 
 @functools.partial(jax.jit, static_argnames=("band_height",))
