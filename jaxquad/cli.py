@@ -9,10 +9,10 @@ import sys
 # subcommand -> module defining `add_arguments(parser)` and `run(args) -> int`.
 _COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("jaxquad.bench", "time the kernels (compile and steady run) for one robot and batches"),
-    "demo": ("jaxquad.demo", "simulate a small fleet, estimate contacts and odometry, score, write a report folder"),
+    "demo": ("jaxquad.demo.cli", "simulate a small fleet, estimate contacts and odometry, score, write a report folder"),
     "eval": ("jaxquad.metrics.cli", "ATE/ARE/APE/RPE of an estimated TUM trajectory against a reference, as evo"),
     "estimate": ("jaxquad.estimate.cli", "contacts and leg-inertial odometry over a robot log (TUM, npz, JSON summary)"),
-    "tune": ("jaxquad.estimate.tune_cli", "tune the contact observer's gains and thresholds on a fleet log (grid search or gradient)"),
+    "tune": ("jaxquad.estimate.tune.cli", "tune the contact observer's gains and thresholds on a fleet log (grid search or gradient)"),
     "simulate": ("jaxquad.sim.cli", "run an MJX fleet of robots in generated worlds; write the fleet log, ground-truth TUM and maps"),
 }
 

@@ -11,11 +11,12 @@ counter-clockwise from the camera's forward axis.
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
+
+from jaxquad.io.atomic import atomic_open
 
 # One colour per trajectory source, fixed so every picture of a report reads the same way.
 COLORS = {"ground truth": "black", "mixed": "tab:orange", "observer": "tab:purple", "truth": "tab:blue",
@@ -35,14 +36,9 @@ def _save(fig, path: str | os.PathLike) -> Path:
     import matplotlib.pyplot as plt
 
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".png")
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=110, bbox_inches="tight")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        with atomic_open(path, "wb") as f:
+            fig.savefig(f, format="png", dpi=110, bbox_inches="tight")
     finally:
         plt.close(fig)
     return path

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import argparse
 import shutil
-import tempfile
 from pathlib import Path
+
+SUMMARY_KIND = "jaxquad simulate"
 
 
 def parse_resolution(text: str) -> tuple[int, int]:
@@ -33,65 +34,50 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-randomize", action="store_true", help="nominal masses, friction, motors and noise levels")
 
 
-def simulate(config, seconds: float, out: str | Path, progress: bool = True) -> Path:
-    """Run the fleet and write `fleet.npz`, `gt_<i>.tum` per robot and `map_<world>_<k>.yaml/.pgm`.
+def write_fleet(log, folder: str | Path) -> Path:
+    """Write a FleetLog into an existing folder: `fleet.npz`, `gt_<i>.tum` per robot,
+    `map_<world>_<k>.yaml/.pgm` per world and a `summary.json` naming the configuration."""
+    import dataclasses
 
-    Chunks stream into memory-mapped arrays in a temporary folder inside `out`; the log is packed
-    and renamed only when the run is complete, so nothing half-written is ever left at a final path.
-    """
-    import jax
     import numpy as np
-    from tqdm import tqdm
 
-    from jaxquad.io import TumTrajectory, save_log, save_map, write_tum
-    from jaxquad.sim.fleet import build_fleet, init, n_chunks, run_chunk
-    from jaxquad.sim.worlds import occupancy_map
+    from jaxquad.io import TumTrajectory, save_log, save_map, write_json, write_tum
+
+    folder, config = Path(folder), log.config
+    save_log(folder / "fleet.npz", log)
+    t = np.asarray(log["t"])
+    for i in range(log.n_robots):
+        pose = np.asarray(log["gt_pose"][i], np.float64)
+        traj = TumTrajectory(t, pose[:, :3], np.c_[pose[:, 4:7], pose[:, 3:4]])
+        write_tum(folder / f"gt_{i:04d}.tum", traj, header=f"ground truth base pose, robot {i} of {config.robot} in {config.world}")
+    for k, world_map in enumerate(log.maps()):
+        save_map(folder / f"map_{config.world}_{k}.yaml", world_map)
+    write_json(folder / "summary.json", {"kind": SUMMARY_KIND, "config": dataclasses.asdict(config),
+                                         "samples": int(t.size), "fallen": np.asarray(log["fallen"]).tolist()})  # fmt: skip
+    return folder / "fleet.npz"
+
+
+def simulate(config, seconds: float, out: str | Path, progress: bool = True) -> Path:
+    """Run the fleet (`jaxquad.sim.rollout`) and write it (`write_fleet`) into the folder `out`.
+
+    The folder is built beside `out` and renamed into place when complete (an earlier simulation
+    in `out` is replaced only then), so nothing half-written is ever left at a final path. Chunks
+    stream into memory-mapped arrays inside it, so host memory stays bounded.
+    """
+    from jaxquad.io import atomic_dir, check_output_dir
+    from jaxquad.sim.rollout import rollout
 
     if not (seconds > 0):
         raise ValueError(f"--seconds must be positive, got {seconds}")
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    fleet = build_fleet(config)
-    chunks = n_chunks(fleet, seconds)
-    n, T = config.n_robots, chunks * fleet.samples_per_chunk
-    F = chunks * config.frames_per_chunk
-    tmp = Path(tempfile.mkdtemp(dir=out, prefix=".simulate."))
-    try:
-        arrays: dict[str, np.ndarray] = {}
-        state = init(fleet)
-        for c in tqdm(range(chunks), desc=f"simulate {n} x {config.robot}", unit="chunk", disable=not progress):
-            state, outs = run_chunk(fleet, state)
-            outs = jax.device_get(outs)
-            for key, value in outs.items():
-                if key not in arrays:
-                    total = F if key == "depth" else T
-                    shape = (n, total) + value.shape[2:]
-                    arrays[key] = np.lib.format.open_memmap(tmp / f"{key}.npy", mode="w+", dtype=value.dtype, shape=shape)
-                step = value.shape[1]
-                arrays[key][:, c * step : (c + 1) * step] = value
-        state = jax.device_get(state)
-        t = (np.arange(T) + 1) * fleet.log_dt
-        log = dict(arrays)
-        log.update(
-            t=t,
-            robot=np.array(config.robot),
-            joint_names=np.array(fleet.robot.joint_names),
-            fallen=np.asarray(state.fallen),
-            collided=np.asarray(state.collided),
-            world_index=np.arange(n) % config.n_worlds,
-        )
-        if config.depth:
-            log.update(depth_t=(np.arange(F) + 1) * fleet.frame_dt, K=fleet.K, T_base_camera=fleet.T_base_camera)
-        save_log(out / "fleet.npz", log)
-        for i in range(n):
-            pose = np.asarray(arrays["gt_pose"][i], np.float64)
-            traj = TumTrajectory(t, pose[:, :3], np.c_[pose[:, 4:7], pose[:, 3:4]])
-            write_tum(out / f"gt_{i:04d}.tum", traj, header=f"ground truth base pose, robot {i} of {config.robot} in {config.world}")
-        for k, world in enumerate(fleet.worlds):
-            save_map(out / f"map_{config.world}_{k}.yaml", occupancy_map(world))
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return out / "fleet.npz"
+    check_output_dir(out, kind=SUMMARY_KIND)
+    with atomic_dir(out) as tmp:
+        store = tmp / ".arrays"
+        store.mkdir()
+        log = rollout(config, seconds, progress, store=store)
+        write_fleet(log, tmp)
+        del log
+        shutil.rmtree(store)
+    return Path(out) / "fleet.npz"
 
 
 def run(args: argparse.Namespace) -> int:

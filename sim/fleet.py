@@ -6,9 +6,14 @@ every `log_every` physics steps (default 1: 250 Hz); the depth camera renders ev
 `camera_every` physics steps (default: nearest to 30 Hz, i.e. 8 steps = 31.25 Hz at 0.004 s).
 
 Time is split into chunks of `frames_per_chunk` camera periods. One chunk is a nested
-`lax.scan` (frames -> log samples -> physics steps), jitted once for the whole fleet under
-`jax.vmap`, so depth is cast only on camera frames and device memory holds one chunk at a time;
-the host streams each chunk to disk.
+`lax.scan` (frames -> log samples -> physics steps), compiled once for the whole fleet under
+`jax.vmap`, so depth is cast only on camera frames and device memory holds one chunk at a time.
+The chunk length is chosen from the device's free memory and the chunk's footprint as XLA reports
+it (`jaxquad.sim.memory`), or an explicit length is checked, before anything is allocated: a fleet
+that cannot fit raises one line naming the largest robot count that fits.
+
+The per-robot functions (`Fleet.functions`: init, physics step, log sample, camera frame, chunk)
+are pure and single-robot; closed-loop work drives the same physics step with its own commands.
 
 Per-robot variation is a vmapped `mjx.Model` with an explicit `in_axes` tree (`model_in_axes`):
 body masses and inertias (x U(0.9, 1.1)), sliding friction of every geom (U(0.5, 1.2)) and motor
@@ -17,40 +22,33 @@ force), plus per-robot sensor noise levels (`SensorNoise` x U(0.5, 1.5)). A robo
 drops below half its stance height, tilts past 60 deg, or whose state turns non-finite is flagged
 `fallen` and frozen (its state no longer advances) while the others go on. World boxes are not in
 the physics model (see `jaxquad.sim.worlds`); a base entering a box footprint is flagged too.
-
-Ground truth of the feet: `gt_force` (T, 4, 3) is the force of the floor (every contact of the
-foot geom) on each foot, world frame, N: the constraint solver's contact forces, which are the
-forces that moved the robot because the built-in models let the solver converge (see their
-`<option>`; a one-iteration solver reports forces inconsistent with the motion). `gt_contact`
-(T, 4) is load-bearing contact: the foot's total normal force exceeds `GT_CONTACT_MIN_FORCE`
-(1 N). Geometric touch (penetration of the foot sphere) outlasts it by a few samples at lift-off,
-when the soft contact is still compressed but no longer pushes.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
+from jaxtyping import Array
 
-from jaxquad.kernels.lie import yaw_of
-from jaxquad.kernels.raycast import Boxes, cast_depth, pinhole_rays
+from jaxquad.kernels.raycast import Boxes, pinhole_rays
 
+from . import memory
 from . import sensors as S
-from .locomotion import Gait, GaitParams, GaitState, gait_init, gait_step
-from .route_follow import RouteParams, RouteState, route_init, route_step
+from .robot_step import _R_MJCAM_OPTICAL, GT_CONTACT_MIN_FORCE, FleetFunctions, RobotSetup, RobotState, make_functions
+
+__all__ = ["GT_CONTACT_MIN_FORCE", "MAX_FRAMES_PER_CHUNK", "Fleet", "FleetConfig", "FleetFunctions", "RobotSetup", "RobotState",
+           "build_fleet", "init", "n_chunks", "run_chunk"]
+from .locomotion import Gait, GaitParams
+from .route_follow import RouteParams
 from .routes import plan_loop
 from .worlds import World, make_world
 
-_MAX_TILT_COS = 0.5  # cos(60 deg)
-GT_CONTACT_MIN_FORCE = 1.0  # N: normal force above which a foot counts as in contact (0.7% of go2's weight)
-# MuJoCo cameras look along -z with +y up; the optical frame looks along +z with +y down.
-_R_MJCAM_OPTICAL = np.diag([1.0, -1.0, -1.0])
+MAX_FRAMES_PER_CHUNK = 30  # camera periods per chunk when memory allows (~1 s)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,7 +64,7 @@ class FleetConfig:
     height: int = 120
     camera_hz: float = 30.0
     log_every: int = 1  # physics steps per log sample
-    frames_per_chunk: int = 30  # camera periods per chunk (~1 s)
+    frames_per_chunk: int | None = None  # camera periods per chunk; None: sized from free memory (<= 30)
     randomize: bool = True
     n_waypoints: int = 96
 
@@ -74,32 +72,8 @@ class FleetConfig:
         if self.style not in ("calm", "aggressive"):
             raise ValueError(f"unknown style {self.style!r}; choose calm or aggressive")
         for name in ("n_robots", "n_worlds", "width", "height", "log_every", "frames_per_chunk"):
-            if int(getattr(self, name)) < 1:
+            if getattr(self, name) is not None and int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-
-
-class RobotState(eqx.Module):
-    """State of one robot between physics steps."""
-
-    data: object  # mjx.Data
-    gait: GaitState
-    route: RouteState
-    imu: S.ImuState
-    key: PRNGKeyArray
-    t: Float[Array, ""]  # s
-    fallen: Bool[Array, ""]
-    collided: Bool[Array, ""]
-    fall_step: Int[Array, ""]  # physics step of the fall, -1 while upright
-
-
-class RobotSetup(eqx.Module):
-    """Per-robot constants of a run (vmapped with the state)."""
-
-    gait_params: GaitParams
-    route_params: RouteParams
-    noise: S.SensorNoise
-    waypoints: Float[Array, "K 2"]
-    boxes: Boxes
 
 
 @dataclasses.dataclass
@@ -119,6 +93,10 @@ class Fleet:
     dt: float
     camera_every: int
     logs_per_frame: int
+    frames_per_chunk: int = 0  # resolved chunk length (camera frames)
+    functions: FleetFunctions | None = None
+    chunk_bytes: int = 0  # device memory one chunk call holds (XLA's analysis)
+    _structure: object = None
     _init: object = None
     _chunk: object = None
 
@@ -132,7 +110,7 @@ class Fleet:
 
     @property
     def samples_per_chunk(self) -> int:
-        return self.logs_per_frame * self.config.frames_per_chunk
+        return self.logs_per_frame * self.frames_per_chunk
 
 
 def _world_start(waypoints: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, float]:
@@ -239,144 +217,55 @@ def build_fleet(config: FleetConfig) -> Fleet:
     )
     gyro_adr = _sensor_addr(m, mujoco.mjtSensor.mjSENS_GYRO, robot.imu_site_id)
     acc_adr = _sensor_addr(m, mujoco.mjtSensor.mjSENS_ACCELEROMETER, robot.imu_site_id)
-    fleet._init, fleet._chunk = _bind(fleet, jnp.asarray(qpos0, jnp.float32), gyro_adr, acc_adr)
+    _bind(fleet, jnp.asarray(qpos0, jnp.float32), gyro_adr, acc_adr)
     return fleet
 
 
-def _make_functions(fleet: Fleet, gyro_adr: int, acc_adr: int):
-    from mujoco import mjx
-    from mujoco.mjx._src.support import contact_force  # not re-exported by mjx
-
-    robot, gait, cfg = fleet.robot, fleet.gait, fleet.config
-    dt = jnp.float32(fleet.dt)
-    qa, da = robot.base_qpos_adr, robot.base_dof_adr
-    qpos_adr, dof_adr = np.asarray(robot.qpos_adr), np.asarray(robot.dof_adr)
-    foot_geoms = jnp.asarray(robot.foot_geom_ids)
-    min_height = 0.5 * float(gait.body_height)
-    rays = jnp.asarray(fleet.rays)
-    cam_id = robot.camera_id
-
-    def init_one(model, setup: RobotSetup, qpos, key) -> RobotState:
-        # Derived quantities (sensors, camera pose) are filled by the first physics step.
-        data = mjx.make_data(model).replace(qpos=qpos)
-        k_imu, key = jax.random.split(key)
-        return RobotState(
-            data=data,
-            gait=gait_init(gait, setup.gait_params),
-            route=route_init(setup.waypoints, qpos[qa : qa + 2]),
-            imu=S.imu_init(setup.noise, k_imu),
-            key=key,
-            t=jnp.zeros(()),
-            fallen=jnp.zeros((), bool),
-            collided=jnp.zeros((), bool),
-            fall_step=jnp.full((), -1, jnp.int32),
-        )
-
-    def physics_step(model, setup: RobotSetup, s: RobotState) -> RobotState:
-        d = s.data
-        quat = d.qpos[qa + 3 : qa + 7]
-        yaw = yaw_of(quat)
-        pose = jnp.stack([d.qpos[qa], d.qpos[qa + 1], yaw])
-        cmd, route, _ = route_step(setup.route_params, s.route, setup.waypoints, pose)
-        tau, g = gait_step(gait, setup.gait_params, s.gait, d.qpos, d.qvel, cmd, s.t, dt)
-        d_new = mjx.step(model, d.replace(ctrl=tau))
-        w, x, y, _ = d_new.qpos[qa + 3 : qa + 7]
-        up_z = 1 - 2 * (x * x + y * y)  # world z of the base's z axis
-        finite = jnp.all(jnp.isfinite(d_new.qpos)) & jnp.all(jnp.isfinite(d_new.qvel))
-        down = ~finite | (d_new.qpos[qa + 2] < min_height) | (up_z < _MAX_TILT_COS)
-        fallen = s.fallen | down
-        # Freeze a fallen robot: keep its last valid state (a non-finite one never enters).
-        keep = lambda old, new: jnp.where(fallen, old, new)  # noqa: E731
-        step_no = jnp.round(s.t / dt).astype(jnp.int32)
-        return RobotState(
-            data=jax.tree_util.tree_map(keep, d, d_new),
-            gait=jax.tree_util.tree_map(keep, s.gait, g),
-            route=jax.tree_util.tree_map(keep, s.route, route),
-            imu=s.imu,
-            key=s.key,
-            t=s.t + dt,
-            fallen=fallen,
-            collided=s.collided,
-            fall_step=jnp.where(down & ~s.fallen, step_no + 1, s.fall_step),
-        )
-
-    def sample(model, setup: RobotSetup, s: RobotState) -> tuple[RobotState, dict]:
-        d = s.data
-        key, k_imu, k_enc, k_tau = jax.random.split(s.key, 4)
-        quat = d.qpos[qa + 3 : qa + 7]
-        gyro, acc, quat_meas, imu = S.imu_step(
-            setup.noise, s.imu, k_imu, d.sensordata[gyro_adr : gyro_adr + 3], d.sensordata[acc_adr : acc_adr + 3], quat, fleet.log_dt
-        )
-        q, qd = S.encoders(setup.noise, k_enc, d.qpos[qpos_adr], d.qvel[dof_adr])
-        tau = S.joint_torque(setup.noise, k_tau, d.actuator_force)
-        # Force of each contact in its frame (normal first; the normal points from geom 0 to geom 1)
-        # and in the world frame; summed per foot with the sign of the force on the foot geom.
-        con = d._impl.contact
-        f_con = jnp.stack([contact_force(model, d, i)[:3] for i in range(con.geom.shape[0])])
-        f_world = jnp.einsum("ci,cij->cj", f_con, con.frame)
-        sign = jnp.where(con.geom[:, 1:2] == foot_geoms[None], 1.0, 0.0) - jnp.where(con.geom[:, 0:1] == foot_geoms[None], 1.0, 0.0)
-        gt_force = jnp.einsum("cf,cj->fj", sign, f_world)
-        contact = jnp.abs(sign).T @ f_con[:, 0] > GT_CONTACT_MIN_FORCE
-        xy = d.qpos[qa : qa + 2]
-        inside = _inside_any_box(setup.boxes, xy)
-        s = eqx.tree_at(lambda r: (r.imu, r.key, r.collided), s, (imu, key, s.collided | inside))
-        out = dict(
-            q=q, qd=qd, tau=tau, gyro=gyro, acc=acc, quat_wxyz=quat_meas,
-            gt_pose=jnp.concatenate([d.qpos[qa : qa + 3], quat]),
-            gt_contact=contact, gt_force=gt_force, valid=~s.fallen,
-        )  # fmt: skip
-        return s, out
-
-    def frame(model, setup: RobotSetup, s: RobotState):
-        def log_period(s, _):
-            s = jax.lax.fori_loop(0, cfg.log_every, lambda _, s: physics_step(model, setup, s), s)
-            return sample(model, setup, s)
-
-        s, outs = jax.lax.scan(log_period, s, None, length=fleet.logs_per_frame)
-        if not cfg.depth:
-            return s, outs
-        d = s.data
-        R_world_cam = d.cam_xmat[cam_id] @ jnp.asarray(_R_MJCAM_OPTICAL, jnp.float32)
-        depth_true = cast_depth(d.cam_xpos[cam_id], R_world_cam, rays, setup.boxes)
-        key, k_depth = jax.random.split(s.key)
-        depth = S.depth_camera(setup.noise, k_depth, depth_true, rays)
-        s = eqx.tree_at(lambda r: r.key, s, key)
-        return s, (outs, depth)
-
-    def chunk_one(model, setup: RobotSetup, s: RobotState):
-        s, outs = jax.lax.scan(lambda s, _: frame(model, setup, s), s, None, length=cfg.frames_per_chunk)
-        if cfg.depth:
-            outs, depth = outs
-            outs = dict(outs, depth=depth)
-        # (frames, logs_per_frame, ...) -> (samples, ...)
-        outs = {k: (v if k == "depth" else v.reshape((-1,) + v.shape[2:])) for k, v in outs.items()}
-        return s, outs
-
-    init = jax.jit(jax.vmap(init_one, in_axes=(fleet.model_in_axes, 0, 0, 0)))
-    chunk = jax.jit(jax.vmap(chunk_one, in_axes=(fleet.model_in_axes, 0, 0)), donate_argnums=(2,))
-    return init, chunk
-
-
-# Jitted functions per static structure, so fleets differing only in seeds, sizes, styles or
-# randomization reuse one compilation (everything else enters as arguments).
+# reuse one compilation (everything else enters as arguments).
+_FUNCTIONS: dict = {}
 _COMPILED: dict = {}
 
 
-def _bind(fleet: Fleet, qpos0: Array, gyro_adr: int, acc_adr: int):
-    cfg = fleet.config
-    key = (dataclasses.replace(cfg, seed=0, n_robots=1, n_worlds=1, style="calm", randomize=True), gyro_adr, acc_adr)
+def _compile_chunk(fleet: Fleet, state_shape, frames: int):
+    shapes = tuple((x.shape, str(x.dtype)) for x in jax.tree.leaves((fleet.model, fleet.setup, state_shape)))
+    key = (fleet._structure, shapes, frames)
     if key not in _COMPILED:
-        _COMPILED[key] = _make_functions(fleet, gyro_adr, acc_adr)
-    init, chunk = _COMPILED[key]
+        fn = functools.partial(fleet.functions.chunk, frames=frames)
+        batched = jax.jit(jax.vmap(fn, in_axes=(fleet.model_in_axes, 0, 0)), donate_argnums=(2,))
+        _COMPILED[key] = batched.lower(fleet.model, fleet.setup, state_shape).compile()
+    return _COMPILED[key]
+
+
+def _bind(fleet: Fleet, qpos0: Array, gyro_adr: int, acc_adr: int) -> None:
+    """Attach the compiled init and chunk functions, with the chunk length planned (see sim.memory)."""
+    cfg = fleet.config
+    fleet._structure = (dataclasses.replace(cfg, seed=0, n_robots=1, n_worlds=1, style="calm", randomize=True,
+                                            frames_per_chunk=None), gyro_adr, acc_adr)  # fmt: skip
+    if fleet._structure not in _FUNCTIONS:
+        fns = make_functions(fleet, gyro_adr, acc_adr)
+        _FUNCTIONS[fleet._structure] = (fns, jax.jit(jax.vmap(fns.init, in_axes=(fleet.model_in_axes, 0, 0, 0))))
+    fleet.functions, init_jit = _FUNCTIONS[fleet._structure]
     keys = jax.random.split(jax.random.key(cfg.seed), cfg.n_robots)
-    return (lambda: init(fleet.model, fleet.setup, qpos0, keys)), (lambda s: chunk(fleet.model, fleet.setup, s))
-
-
-def _inside_any_box(boxes: Boxes, xy: Float[Array, " 2"]) -> Bool[Array, ""]:
-    p = xy - boxes.center[:, :2]
-    c, s = jnp.cos(boxes.yaw), jnp.sin(boxes.yaw)
-    lx, ly = c * p[:, 0] + s * p[:, 1], -s * p[:, 0] + c * p[:, 1]
-    return jnp.any((jnp.abs(lx) < boxes.half[:, 0]) & (jnp.abs(ly) < boxes.half[:, 1]))
+    fleet._init = lambda: init_jit(fleet.model, fleet.setup, qpos0, keys)
+    state_shape = jax.eval_shape(fleet._init)
+    frames = cfg.frames_per_chunk or MAX_FRAMES_PER_CHUNK
+    compiled = _compile_chunk(fleet, state_shape, frames)
+    out_per_frame = sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(compiled.out_info[1])) // frames
+    budget, total = int(memory.MEMORY_FRACTION * memory.free_bytes()), memory.footprint_bytes(compiled)
+    if total > budget:
+        fit = memory.plan_frames(total, frames, out_per_frame, budget)
+        if cfg.frames_per_chunk is not None or fit < 1:
+            at_one = total - out_per_frame * (frames - 1)
+            n_max = memory.largest_fleet(cfg.n_robots, at_one, budget)
+            what = f"a chunk of {frames} frames" if cfg.frames_per_chunk is not None and fit >= 1 else "even a 1-frame chunk"
+            raise ValueError(
+                f"a fleet of {cfg.n_robots} robots does not fit: {what} needs {total / memory.GIB:.1f} GiB of the "
+                f"{budget / memory.GIB:.1f} GiB free; the largest fleet that fits has about {n_max} robots"
+            )
+        frames = fit
+        compiled = _compile_chunk(fleet, state_shape, frames)
+        total = memory.footprint_bytes(compiled)
+    fleet.frames_per_chunk, fleet.chunk_bytes, fleet._chunk = frames, total, compiled
 
 
 def init(fleet: Fleet) -> RobotState:
@@ -387,8 +276,8 @@ def init(fleet: Fleet) -> RobotState:
 def run_chunk(fleet: Fleet, state: RobotState) -> tuple[RobotState, dict[str, Array]]:
     """Advance every robot by one chunk; returns the new state (the old one is donated) and the
     chunk's samples: per-robot arrays (N, samples_per_chunk, ...) and `depth` (N, frames, H, W)."""
-    return fleet._chunk(state)
+    return fleet._chunk(fleet.model, fleet.setup, state)
 
 
 def n_chunks(fleet: Fleet, seconds: float) -> int:
-    return max(1, math.ceil(seconds / (fleet.frame_dt * fleet.config.frames_per_chunk) - 1e-9))
+    return max(1, math.ceil(seconds / (fleet.frame_dt * fleet.frames_per_chunk) - 1e-9))

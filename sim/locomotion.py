@@ -317,8 +317,8 @@ def gait_step(
     command: Float[Array, " 3"],
     t: Float[Array, ""],
     dt: Float[Array, ""],
-) -> tuple[Float[Array, " nu"], GaitState]:
-    """Joint torques (nu,) for one control period `dt` (s) at time `t` (s).
+) -> tuple[GaitState, Float[Array, " nu"]]:
+    """New state and joint torques (nu,) for one control period `dt` (s) at time `t` (s).
 
     `command` is (vx, vy, yaw rate) in the body frame (m/s, rad/s); it is clipped to `v_max`,
     gated by the stop-and-go pattern and rate limited by `acc_max`. Non-finite inputs zero the
@@ -410,4 +410,4 @@ def gait_step(
         q_des=q_des,
         ok=ok,
     )
-    return tau, new_state
+    return new_state, tau

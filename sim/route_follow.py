@@ -54,12 +54,12 @@ def route_step(
     state: RouteState,
     waypoints: Float[Array, "K 2"],
     pose_world_base: Float[Array, " 3"],
-) -> tuple[Float[Array, " 3"], RouteState, Bool[Array, ""]]:
+) -> tuple[RouteState, tuple[Float[Array, " 3"], Bool[Array, ""]]]:
     """Velocity command (vx, vy in m/s, yaw rate in rad/s; body frame) following the closed loop.
 
     `pose_world_base` is (x, y, yaw). The pursued point lies `lookahead` metres along the route
-    past the projection on the current segment, spilling onto the next one. Returns the command,
-    the new state, and a validity flag; a non-finite pose gives a zero command and keeps the state.
+    past the projection on the current segment, spilling onto the next one. Returns the new state
+    and (command, validity flag); a non-finite pose gives a zero command and keeps the state.
     """
     k = waypoints.shape[0]
     p, yaw = pose_world_base[:2], pose_world_base[2]
@@ -93,4 +93,4 @@ def route_step(
         target=jnp.where(valid, target, state.target).astype(jnp.int32),
         laps=jnp.where(valid, laps, state.laps).astype(jnp.int32),
     )
-    return cmd, new_state, valid
+    return new_state, (cmd, valid)

@@ -105,8 +105,8 @@ def imu_step(
     acc_true: Float[Array, " 3"],
     quat_world_base: Float[Array, " 4"],
     dt: Float[Array, ""] | float,
-) -> tuple[Float[Array, " 3"], Float[Array, " 3"], Float[Array, " 4"], ImuState]:
-    """One IMU sample `dt` seconds after the previous: (gyro rad/s, acc m/s^2, quat wxyz, state)."""
+) -> tuple[ImuState, tuple[Float[Array, " 3"], Float[Array, " 3"], Float[Array, " 4"]]]:
+    """One IMU sample `dt` seconds after the previous: (state, (gyro rad/s, acc m/s^2, quat wxyz))."""
     k = jax.random.split(key, 6)
     sq = jnp.sqrt(dt)
     state = ImuState(
@@ -119,7 +119,7 @@ def imu_step(
     tilt = noise.tilt_white * jax.random.normal(k[5], (3,)) * jnp.array([1.0, 1.0, 0.0])
     quat = (SO3.from_z_radians(state.yaw_drift) @ SO3(quat_world_base) @ SO3.exp(tilt)).wxyz
     quat = quat / jnp.linalg.norm(quat)
-    return gyro, acc, quat * jnp.sign(quat[0] + 1e-12), state
+    return state, (gyro, acc, quat * jnp.sign(quat[0] + 1e-12))
 
 
 def _quantize(x: Array, step: Array) -> Array:

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from jaxquad import demo, report
+from jaxquad.metrics import scan_map_hits
 from jaxquad.io import OccupancyMap
 
 
@@ -27,7 +28,7 @@ def test_scan_map_hits_matches_brute_force():
     pts = np.c_[rng.uniform(-1.5, 2.2, 400), rng.uniform(0.0, 2.8, 400)]
     pts[::37] = np.nan
     tol = 0.12
-    got = demo.scan_map_hits(pts, occ, tol)
+    got = scan_map_hits(pts, occ, tol)
     occ_rc = np.argwhere(occ.grid >= 50)
     expected = np.zeros(len(pts), bool)
     for j, p in enumerate(pts):
@@ -45,8 +46,8 @@ def test_scan_map_hits_matches_brute_force():
 
 def test_scan_map_hits_empty_map_and_shape():
     occ = OccupancyMap(np.zeros((5, 5), np.int8), 0.1, (0.0, 0.0, 0.0))
-    assert demo.scan_map_hits(np.zeros((2, 3, 2)), occ).shape == (2, 3)
-    assert not demo.scan_map_hits(np.zeros((2, 3, 2)), occ).any()
+    assert scan_map_hits(np.zeros((2, 3, 2)), occ).shape == (2, 3)
+    assert not scan_map_hits(np.zeros((2, 3, 2)), occ).any()
 
 
 def test_band_rows_are_the_rows_the_kernel_samples():
@@ -72,7 +73,7 @@ def test_camera_pose_and_scan_points_closed_form():
     gt = np.array([1.0, 2.0, 0.3, np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
     T = np.eye(4)
     T[:3, 3] = [0.28, 0.0, 0.05]
-    xy, heading = demo._camera_pose_2d(gt, T)
+    xy, heading = demo.camera_pose_2d(gt, T)
     np.testing.assert_allclose(xy, [1.0 + 0.28 * np.cos(yaw), 2.0 + 0.28 * np.sin(yaw)], atol=1e-12)
     assert heading == pytest.approx(yaw)
     pts = report.scan_points_world(np.array([2.0, np.inf, 1.0]), np.array([0.0, 0.1, np.pi / 2]), xy, yaw)
@@ -85,7 +86,7 @@ def test_frame_samples_latest_at_or_before():
     t = np.arange(1, 101) * 0.004
     depth_t = np.array([0.001, 0.004, 0.0319, 0.032, 0.1999, 0.4, 0.5])
     expected = [max(j for j in range(t.size) if t[j] <= x) if x >= t[0] else 0 for x in depth_t]
-    np.testing.assert_array_equal(demo._frame_samples(t, depth_t), expected)
+    np.testing.assert_array_equal(demo.frame_samples(t, depth_t), expected)
 
 
 def test_mean_scores_and_table():

@@ -8,7 +8,6 @@ vmapped function once, which keeps the module's compile time small.
 """
 
 import copy
-import dataclasses
 
 import jax
 import jax.numpy as jnp

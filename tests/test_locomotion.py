@@ -49,7 +49,7 @@ def _walk_c(name, style, command, seconds, iterations=None):
     qpos, tau, phase, fz = [], [], [], []
     force = np.zeros(6)
     for i in range(int(round(seconds / dt))):
-        u, state = _step(
+        state, u = _step(
             gait, params, state, jnp.asarray(data.qpos, jnp.float32), jnp.asarray(data.qvel, jnp.float32),
             cmd, jnp.float32(i * dt), jnp.float32(dt),
         )
@@ -128,8 +128,8 @@ def test_walking_robot_follows_a_loop():
     def control(state, rstate, qpos, qvel, t):
         w, x, y, z = qpos[3:7]
         yaw = jnp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-        cmd, rstate, _ = route_step(route, rstate, wp, jnp.stack([qpos[0], qpos[1], yaw]))
-        u, state = gait_step(gait, params, state, qpos, qvel, cmd, t, jnp.float32(dt))
+        rstate, (cmd, _) = route_step(route, rstate, wp, jnp.stack([qpos[0], qpos[1], yaw]))
+        state, u = gait_step(gait, params, state, qpos, qvel, cmd, t, jnp.float32(dt))
         return u, state, rstate
 
     xy, targets = [], []
@@ -176,15 +176,15 @@ def test_params_vmap_and_bad_input_is_contained():
     qvel = jnp.zeros((2, robot.nv))
     cmd = jnp.array([[0.4, 0.0, 0.1], [1.0, 0.0, 0.0]])
     batched = jax.jit(jax.vmap(gait_step, in_axes=(None, 0, 0, 0, 0, 0, None, None)))
-    tau, new = batched(gait, params, states, qpos, qvel, cmd, jnp.float32(0.1), jnp.float32(0.004))
+    new, tau = batched(gait, params, states, qpos, qvel, cmd, jnp.float32(0.1), jnp.float32(0.004))
     p0 = jax.tree.map(lambda x: x[0], params)
-    tau0, _ = _step(gait, p0, gait_init(gait, p0), qpos[0], qvel[0], cmd[0], jnp.float32(0.1), jnp.float32(0.004))
+    _, tau0 = _step(gait, p0, gait_init(gait, p0), qpos[0], qvel[0], cmd[0], jnp.float32(0.1), jnp.float32(0.004))
     np.testing.assert_allclose(tau[0], tau0, rtol=1e-5, atol=1e-5)
     assert np.all(np.isfinite(np.asarray(tau[0]))) and np.any(np.asarray(tau[0]) != 0.0)
     assert not bool(new.ok[1]) and bool(new.ok[0])
     np.testing.assert_array_equal(np.asarray(tau[1]), 0.0)
     # The flag latches: a finite input afterwards still gives zero torque.
-    tau1, again = _step(gait, p0, jax.tree.map(lambda x: x[1], new), qpos[0], qvel[0], cmd[0],
+    again, tau1 = _step(gait, p0, jax.tree.map(lambda x: x[1], new), qpos[0], qvel[0], cmd[0],
                         jnp.float32(0.2), jnp.float32(0.004))
     assert not bool(again.ok)
     np.testing.assert_array_equal(np.asarray(tau1), 0.0)
@@ -204,7 +204,7 @@ def test_mjx_batched_rollout_walks():
     def rollout(p, c):
         def body(carry, i):
             d, s = carry
-            u, s = gait_step(gait, p, s, d.qpos, d.qvel, c, i * dt, jnp.float32(dt))
+            s, u = gait_step(gait, p, s, d.qpos, d.qvel, c, i * dt, jnp.float32(dt))
             d = mjx.step(model, d.replace(ctrl=u))
             return (d, s), (d.qpos, u)
 

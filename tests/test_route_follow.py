@@ -26,7 +26,7 @@ def _drive(params, pose0, wp, steps, dt=0.02):
     pose = np.array(pose0, np.float64)
     track = []
     for _ in range(steps):
-        cmd, state, valid = step(params, state, jnp.asarray(wp), jnp.asarray(pose, jnp.float32))
+        state, (cmd, valid) = step(params, state, jnp.asarray(wp), jnp.asarray(pose, jnp.float32))
         assert bool(valid)
         vx, vy, wz = np.asarray(cmd, np.float64)
         c, s = np.cos(pose[2]), np.sin(pose[2])
@@ -53,11 +53,11 @@ def test_vmapped_matches_single_and_bad_pose_flagged():
     wp = jnp.asarray(SQUARE)
     poses = jnp.array([[1.0, 0.5, 0.0], [3.0, 2.0, 1.0], [jnp.nan, 0.0, 0.0]])
     states = jax.vmap(route_init, in_axes=(None, 0))(wp, jnp.nan_to_num(poses[:, :2]))
-    cmd, new, valid = jax.jit(jax.vmap(route_step, in_axes=(None, 0, None, 0)))(params, states, wp, poses)
+    new, (cmd, valid) = jax.jit(jax.vmap(route_step, in_axes=(None, 0, None, 0)))(params, states, wp, poses)
     single = jax.jit(route_step)
     for i in range(2):
         s_i = jax.tree.map(lambda x: x[i], states)
-        c_i, n_i, v_i = single(params, s_i, wp, poses[i])
+        n_i, (c_i, v_i) = single(params, s_i, wp, poses[i])
         np.testing.assert_allclose(cmd[i], c_i, atol=1e-6)
         assert bool(v_i) and int(new.target[i]) == int(n_i.target)
     assert not bool(valid[2])

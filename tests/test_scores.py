@@ -1,7 +1,6 @@
 """Scores against small cases computed by hand (the arithmetic is in the comments)."""
 
 import numpy as np
-import pytest
 
 from jaxquad.estimate import scores
 

@@ -78,7 +78,7 @@ def test_bias_random_walk_variance_under_vmap_and_scan():
         state = S.imu_init(noise, key)
 
         def body(state, k):
-            _, _, _, state = S.imu_step(noise, state, k, jnp.zeros(3), jnp.array([0.0, 0.0, 9.81]), jnp.array([1.0, 0, 0, 0]), dt)
+            state, _ = S.imu_step(noise, state, k, jnp.zeros(3), jnp.array([0.0, 0.0, 9.81]), jnp.array([1.0, 0, 0, 0]), dt)
             return state, None
 
         state, _ = jax.lax.scan(body, state, jax.random.split(key, steps))
@@ -93,12 +93,12 @@ def test_orientation_noise_levels_and_yaw_drift():
     quat_true = jnp.array([np.cos(0.2), np.sin(0.2) * 0.6, np.sin(0.2) * 0.8, 0.0])
     clean = S.SensorNoise.noiseless()
     state = S.imu_init(clean, jax.random.key(0))
-    gyro, acc, quat, _ = _imu_step(clean, state, jax.random.key(1), jnp.ones(3), jnp.array([0.0, 0.0, 9.81]), quat_true, 0.004)
+    _, (gyro, acc, quat) = _imu_step(clean, state, jax.random.key(1), jnp.ones(3), jnp.array([0.0, 0.0, 9.81]), quat_true, 0.004)
     np.testing.assert_allclose(np.asarray(quat), np.asarray(quat_true), atol=1e-6)
     np.testing.assert_allclose(np.asarray(gyro), 1.0)
     # Pure yaw drift leaves the gravity direction seen in the base frame unchanged.
     drift = eqx.tree_at(lambda n: n.yaw_walk, clean, jnp.array(0.5, jnp.float32))
-    _, _, quat_d, st = _imu_step(drift, state, jax.random.key(2), jnp.zeros(3), jnp.zeros(3), quat_true, 1.0)
+    st, (_, _, quat_d) = _imu_step(drift, state, jax.random.key(2), jnp.zeros(3), jnp.zeros(3), quat_true, 1.0)
 
     def up_in_base(q):
         w, x, y, z = np.asarray(q)

@@ -5,6 +5,7 @@ whose feet receive a known trot-like schedule of vertical forces, with noisy tor
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import jax
@@ -256,7 +257,7 @@ def test_grid_finds_the_configuration_of_a_one_at_a_time_loop(fleet):
             for ar in _SPEC.alpha_rear:
                 for on in _SPEC.threshold_on:
                     for ratio in _SPEC.off_ratio:
-                        p = tn.dataclasses.replace(
+                        p = dataclasses.replace(
                             base, bandwidth=jnp.float32(b), alpha=jnp.array([af, af, ar, ar], jnp.float32),
                             threshold_on=jnp.full(4, on, jnp.float32), threshold_off=jnp.full(4, on * ratio, jnp.float32))
                         rows.append((p, tn.fleet_scores(p, inputs, truth, t)))
@@ -289,7 +290,7 @@ def test_grid_spec_errors():
 
 def test_unconstrained_round_trip_and_off_below_on():
     params = ObserverParams.paper(4, "mixed")
-    params = tn.dataclasses.replace(params, threshold_off=jnp.full(4, 0.5, jnp.float32))
+    params = dataclasses.replace(params, threshold_off=jnp.full(4, 0.5, jnp.float32))
     back = tn.Unconstrained.from_params(params).params(params)
     for name in ("bandwidth", "alpha", "threshold_on", "threshold_off"):
         np.testing.assert_allclose(getattr(back, name), getattr(params, name), rtol=1e-5)
@@ -301,7 +302,7 @@ def test_unconstrained_round_trip_and_off_below_on():
 def test_gradient_decreases_the_loss_and_improves_f1_from_a_bad_start(fleet):
     inputs, truth, t = fleet
     tr_in, tr_truth = tn.select_robots(inputs, [0, 1, 2]), tn.select_robots(truth, [0, 1, 2])
-    bad = tn.dataclasses.replace(
+    bad = dataclasses.replace(
         ObserverParams.paper(4, "mixed"), bandwidth=jnp.float32(8.0), alpha=jnp.full(4, 0.03, jnp.float32),
         threshold_on=jnp.full(4, 60.0, jnp.float32), threshold_off=jnp.full(4, 50.0, jnp.float32))  # fmt: skip
     res = tn.gradient_tune(bad, tr_in, tr_truth, steps=60, learning_rate=0.1, patience=10)
@@ -310,7 +311,7 @@ def test_gradient_decreases_the_loss_and_improves_f1_from_a_bad_start(fleet):
     u = tn.Unconstrained.from_params(res.best)
     g = jax.grad(tn.surrogate_loss)(u, bad, tr_in, tr_truth)
     eps = 1e-2
-    hi, lo = (tn.dataclasses.replace(u, log_bandwidth=u.log_bandwidth + s * eps) for s in (1, -1))
+    hi, lo = (dataclasses.replace(u, log_bandwidth=u.log_bandwidth + s * eps) for s in (1, -1))
     fd = (tn.surrogate_loss(hi, bad, tr_in, tr_truth) - tn.surrogate_loss(lo, bad, tr_in, tr_truth)) / (2 * eps)
     np.testing.assert_allclose(g.log_bandwidth, fd, rtol=0.1, atol=1e-4)
     rest = tn.select_robots(inputs, [3]), tn.select_robots(truth, [3])

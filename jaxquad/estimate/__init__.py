@@ -3,17 +3,8 @@
 from jaxquad.estimate.attitude import AttitudeParams, AttitudeState, attitude_from_acc, estimate_attitude
 from jaxquad.estimate.differentiate import DifferentiatorParams, DifferentiatorState, joint_velocities
 from jaxquad.estimate.odometry import Pose, integrate_twist, odometry_step, se3_exp
-from jaxquad.estimate.pipeline import (
-    CONTACT_SOURCES,
-    Estimate,
-    Flags,
-    PipelineConfig,
-    PipelineParams,
-    RobotInputs,
-    estimate_fleet,
-    estimate_robot,
-    inputs_from_log,
-)
+from jaxquad.estimate.inputs import CONTACT_SOURCES, RobotInputs, full_state, robot_inputs
+from jaxquad.estimate.pipeline import Estimate, Flags, PipelineConfig, PipelineParams, estimate_fleet, estimate_robot, inputs_from_log
 from jaxquad.estimate.run import estimate_log, load_params, run_estimate
 from jaxquad.estimate.scores import contact_scores, detection_delays, force_rmse, odometry_drift
 from jaxquad.estimate.tune import (
@@ -26,7 +17,7 @@ __all__ = [
     "Estimate", "Flags", "PipelineConfig", "PipelineParams", "Pose", "RobotInputs", "attitude_from_acc",
     "contact_scores", "detection_delays", "estimate_attitude", "estimate_fleet",
     "estimate_log", "estimate_robot", "force_rmse", "inputs_from_log", "integrate_twist", "load_params",
-    "joint_velocities", "odometry_drift", "odometry_step", "run_estimate", "se3_exp",
+    "joint_velocities", "odometry_drift", "odometry_step", "run_estimate", "se3_exp", "full_state", "robot_inputs",
 ]
 __all__ += [
     "ContactTruth", "GridSpec", "ObserverInputs", "Unconstrained", "fleet_scores", "grid_search", "gradient_tune",

@@ -10,27 +10,34 @@ import argparse
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("log", help="robot log (.npz, single robot or fleet)")
-    parser.add_argument("--out", required=True, help="output folder")
-    parser.add_argument("--params", default=None, help="observer parameters (YAML or JSON); paper defaults if absent")
+    parser.add_argument("log", help="robot log (.npz, single robot or fleet; see the README's log format)")
+    parser.add_argument("--out", required=True, help="output folder (created; replaced only if it holds an earlier estimate)")
+    parser.add_argument("--params", default=None, help="observer parameters, YAML or JSON (default: the paper's numbers)")
     parser.add_argument(
-        "--contacts",
-        choices=("observer", "mixed", "sensor", "truth"),
-        default="mixed",
-        help="contact source: momentum observer (plain or mixed mode), the robot's sensors, or ground truth",
-    )
-    parser.add_argument("--band-height", type=int, default=5, help="scan band height in px (5 sim, 30 real robot)")
-    parser.add_argument("--range-min", type=float, default=0.2, help="scan minimum range, m")
-    parser.add_argument("--range-max", type=float, default=8.0, help="scan maximum range, m")
+        "--contacts", choices=("observer", "mixed", "sensor", "truth"), default="mixed",
+        help="contact source: momentum observer (plain or mixed mode), the robot's sensors, or ground truth (default mixed)",
+    )  # fmt: skip
+    parser.add_argument("--band-height", type=int, default=5, help="scan band height, px (default 5 = simulation; 30 on the real robot)")
+    parser.add_argument("--range-min", type=float, default=0.2, help="scan minimum range, m (default 0.2)")
+    parser.add_argument("--range-max", type=float, default=8.0, help="scan maximum range, m (default 8.0)")
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-
     from tqdm import tqdm
 
-    from jaxquad.estimate.run import run_estimate
+    from jaxquad.estimate.run import SUMMARY_KIND, run_estimate
+    from jaxquad.io import check_output_dir, load_log, read_observer_params
+    from jaxquad.io.jsonfile import to_json
 
+    if args.band_height < 1:
+        raise ValueError(f"--band-height must be >= 1 px, got {args.band_height}")
+    if not (0 <= args.range_min < args.range_max):
+        raise ValueError(f"need 0 <= --range-min < --range-max, got {args.range_min} and {args.range_max}")
+    # Everything the user gave is checked before the (long) estimation starts.
+    check_output_dir(args.out, kind=SUMMARY_KIND)
+    log = load_log(args.log)
+    if args.params is not None:
+        read_observer_params(args.params)
     bar = tqdm(total=None, desc="estimate", unit="robot")
 
     def progress(done: int, total: int) -> None:
@@ -38,15 +45,16 @@ def run(args: argparse.Namespace) -> int:
         bar.update(done - bar.n)
 
     try:
-        summary = run_estimate(
-            args.log, args.out, args.contacts, args.params, progress, args.band_height, args.range_min, args.range_max
-        )
+        summary = run_estimate(log, args.out, args.contacts, args.params, progress, args.band_height,
+                               args.range_min, args.range_max)  # fmt: skip
     finally:
         bar.close()
-    brief = {"robots": len(summary["robots"]), "fallen": sum(r["fallen"] for r in summary["robots"])}
+    robots = summary["robots"]
+    brief = {"robots": len(robots), "fallen": sum(r["fallen"] for r in robots), "out": str(args.out)}
     for key, path in (("contact_f1", ("contacts", "f1")), ("drift_horizontal_pct", ("drift", "horizontal_pct"))):
-        vals = [r["scores"][path[0]][path[1]] for r in summary["robots"] if path[0] in r["scores"]]
+        vals = [r["scores"][path[0]][path[1]] for r in robots if path[0] in r["scores"]]
         if vals:
             brief[f"mean_{key}"] = sum(vals) / len(vals)
-    print(json.dumps(brief))
+            brief[f"mean_{key}_robots"] = len(vals)
+    print(to_json(brief))
     return 0

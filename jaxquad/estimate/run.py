@@ -1,6 +1,10 @@
-"""Estimate over a log file and write the results: the library call behind `jaxquad estimate`.
+"""Estimate over a log (in memory or a file) and write the results: the library calls behind
+`jaxquad estimate`.
 
-Output folder, per robot i (`robot_000`, ... for a fleet, `robot` for a single log):
+`estimate_and_score(log, ...)` runs the pipeline, slices the scans of logs with depth and scores
+everything against the log's ground truth, returning an `EstimateRun` in memory;
+`write_run(run, out_dir)` writes it; `run_estimate(log or path, out_dir, ...)` does both after checking
+the output folder. The folder, per robot i (`robot_000`, ... for a fleet, `robot` for a single log):
   <name>.tum        leg-inertial odometry, `t x y z qx qy qz qw` at every sample (log time, s)
   <name>.npz        t, p_world_base, q_world_base (wxyz), v_base, omega_base, contact,
                     contact_soft, force_z, force_z_filtered (N), qd, and one bool (T,) array per flag
@@ -8,14 +12,17 @@ Output folder, per robot i (`robot_000`, ... for a fleet, `robot` for a single l
                     flag_fallen)
   <name>_scans.npz  when the log has depth: depth_t, ranges_stabilized and ranges_baseline (F, W) m
                     (+inf = no reading), bearings (W,) rad, roll and pitch (F,) rad used per frame
-  summary.json      configuration, per-robot flag counts and, where the log has ground truth,
-                    scores (contact F1 and delays, force RMSE, drift, ATE/RPE)
+  summary.json      configuration, the observer parameters used, per-robot flag counts and, where
+                    the log has ground truth, scores (contact F1 and delays, force RMSE, drift,
+                    ATE/RPE)
+The folder is built beside `out_dir` and renamed into place when complete.
 """
 
 from __future__ import annotations
 
-import json
+import dataclasses
 import os
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -23,51 +30,29 @@ import numpy as np
 from jaxquad.estimate import scores
 
 _FLAGS = ("bad_joints", "bad_imu", "bad_torque", "gap", "no_stance", "fallen")
+_FIELDS = ("p_world_base", "q_world_base", "v_base", "omega_base", "contact", "contact_soft", "force_z",
+           "force_z_filtered", "qd")  # fmt: skip
+SUMMARY_KIND = "jaxquad estimate"
 
 
 def load_params(path: str | os.PathLike | None, n_feet: int = 4, contacts: str = "mixed"):
-    """PipelineParams from a YAML or JSON file (keys: bandwidth, mode, alpha, threshold_on,
-    threshold_off, f_max, sharpness; scalars or per-foot lists), else the paper's defaults."""
-    import jax.numpy as jnp
-
-    from jaxquad.estimate.pipeline import PipelineParams
-
-    mode = "plain" if contacts == "observer" else "mixed"
-    if path is None:
-        return PipelineParams.default(n_feet, mode)
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"params file not found: {path}")
-    import yaml
-
-    raw = yaml.safe_load(path.read_text()) or {}
-    if not isinstance(raw, dict):
-        raise ValueError(f"params file {path}: expected a mapping of observer parameters")
-    raw = raw.get("observer", raw)
-    mode = raw.pop("mode", mode)
-    params = PipelineParams.default(n_feet, mode)
-    known = ("bandwidth", "alpha", "threshold_on", "threshold_off", "f_max", "sharpness")
-    unknown = sorted(set(raw) - set(known))
-    if unknown:
-        raise ValueError(f"params file {path}: unknown key(s) {unknown}; known: {list(known) + ['mode']}")
-    obs = params.observer
-    for key, value in raw.items():
-        old = getattr(obs, key)
-        new = jnp.broadcast_to(jnp.asarray(value, jnp.float32), old.shape)
-        if not bool(jnp.all(jnp.isfinite(new))):
-            raise ValueError(f"params file {path}: {key} is not finite")
-        obs = eqx_replace(obs, key, new)
-    return eqx_replace(params, "observer", obs)
-
-
-def eqx_replace(module, name: str, value):
+    """PipelineParams with the observer numbers of a params file (`jaxquad.io.read_observer_params`),
+    else the paper's defaults."""
     import equinox as eqx
 
-    return eqx.tree_at(lambda m: getattr(m, name), module, value)
+    from jaxquad.estimate.pipeline import PipelineParams
+    from jaxquad.io.params import read_observer_params
+
+    mode = "plain" if contacts == "observer" else "mixed"
+    params = PipelineParams.default(n_feet, mode)
+    if path is None:
+        return params
+    return eqx.tree_at(lambda p: p.observer, params, read_observer_params(path, n_feet, mode))
 
 
-def estimate_log(log: dict, contacts: str = "truth", params=None, robot=None):
-    """Run the pipeline over a log dict; returns (robot, config, Estimate as NumPy, N robots)."""
+def estimate_log(log: Mapping, contacts: str = "truth", params=None, robot=None):
+    """Run the pipeline over a log (a dict, a loaded `.npz` or a `jaxquad.sim.FleetLog`); returns
+    (robot, config, Estimate as NumPy with a leading robot axis)."""
     import jax
 
     from jaxquad.estimate import pipeline
@@ -78,6 +63,18 @@ def estimate_log(log: dict, contacts: str = "truth", params=None, robot=None):
     params = load_params(None, len(robot.foot_names), contacts) if params is None else params
     out = pipeline.estimate_fleet(robot, config, params, inputs)
     return robot, config, jax.tree.map(np.asarray, out)
+
+
+@dataclasses.dataclass
+class EstimateRun:
+    """Everything one estimation run produced, in memory (leading robot axis N on arrays)."""
+
+    t: np.ndarray  # (T,) s
+    names: list[str]  # per robot: robot_000, ... (or "robot" for a single log)
+    estimate: object  # pipeline.Estimate of NumPy arrays
+    scans: list | None  # per robot LogScans, when the log has depth
+    depth_t: np.ndarray | None
+    summary: dict
 
 
 def _scores_one(t, est, log_i: dict, valid, f_max: float) -> dict:
@@ -112,51 +109,96 @@ def _trajectory_metrics(t, est, gt, valid) -> dict:
         return {"error": str(e)}
 
 
-def run_estimate(
-    log_path, out_dir, contacts: str = "truth", params_path=None, progress=None,
-    band_height: int = 5, range_min: float = 0.2, range_max: float = 8.0,
-) -> dict:  # fmt: skip
-    """Estimate over the log at `log_path`, write the output folder, return the summary dict.
+def estimate_and_score(
+    log: Mapping, contacts: str = "truth", params=None, progress=None, band_height: int = 5,
+    range_min: float = 0.2, range_max: float = 8.0, source: str | None = None,
+) -> EstimateRun:
+    """Estimate over `log`, slice its depth frames into scans, score against its ground truth.
 
-    band_height (px) and range_min/range_max (m) configure the scans of logs with depth."""
-    from jaxquad.io import TumTrajectory, load_log, write_tum
-    from jaxquad.robots import load
+    params: PipelineParams (the paper's defaults if None); band_height (px) and range_min/range_max
+    (m) configure the scans; source: where the log came from, for the summary."""
+    from jaxquad.io.params import observer_params_dict
 
-    log = load_log(log_path)
-    robot = load(str(np.asarray(log["robot"])))
-    params = load_params(params_path, len(robot.foot_names), contacts)
-    _, config, out = estimate_log(log, contacts, params, robot)
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    robot = None
+    if params is None:
+        from jaxquad.robots import load
+
+        robot = load(str(np.asarray(log["robot"])))
+        params = load_params(None, len(robot.foot_names), contacts)
+    robot, config, out = estimate_log(log, contacts, params, robot)
     t = np.asarray(log["t"], np.float64)
     fleet = "fallen" in log
     n = out.p_world_base.shape[0]
-    summary = {"log": str(log_path), "robot": robot.name, "contacts": contacts, "config": vars(config) | {},
-               "samples": int(t.size), "duration_s": float(t[-1] - t[0]), "robots": []}  # fmt: skip
+    summary = {"kind": SUMMARY_KIND, "log": source, "robot": robot.name, "contacts": contacts,
+               "config": dataclasses.asdict(config), "samples": int(t.size), "duration_s": float(t[-1] - t[0]),
+               "scans": {"band_height_px": band_height, "range_min_m": range_min, "range_max_m": range_max},
+               "robots": []}  # fmt: skip
+    if contacts in ("observer", "mixed"):
+        summary["observer_params"] = observer_params_dict(params.observer)
+    names, scans = [], [] if "depth" in log else None
     for i in range(n):
-        name = f"robot_{i:03d}" if fleet else "robot"
-        est = {k: getattr(out, k)[i] for k in ("p_world_base", "q_world_base", "v_base", "omega_base", "contact",
-                                               "contact_soft", "force_z", "force_z_filtered", "qd")}  # fmt: skip
+        names.append(f"robot_{i:03d}" if fleet else "robot")
+        est = {k: getattr(out, k)[i] for k in _FIELDS}
         flags = {f: getattr(out.flags, f)[i] for f in _FLAGS}
-        q = est["q_world_base"]
-        write_tum(out_dir / f"{name}.tum", TumTrajectory(t, est["p_world_base"], q[:, [1, 2, 3, 0]]))
-        np.savez(out_dir / f"{name}.npz", t=t, **est, **{f"flag_{k}": v for k, v in flags.items()})
-        if "depth" in log:
+        if scans is not None:
             from jaxquad.estimate.scans import log_scans
 
             depth = np.asarray(log["depth"])[i] if fleet else np.asarray(log["depth"])
-            sc = log_scans(depth, np.asarray(log["depth_t"]), np.asarray(log["K"]), t, q, band_height,
-                           range_min, range_max)  # fmt: skip
-            np.savez(out_dir / f"{name}_scans.npz", depth_t=np.asarray(log["depth_t"]),
-                     **{k: np.asarray(getattr(sc, k)) for k in ("ranges_stabilized", "ranges_baseline",
-                                                                "bearings", "roll", "pitch")})  # fmt: skip
+            scans.append(log_scans(depth, np.asarray(log["depth_t"]), np.asarray(log["K"]), t, est["q_world_base"],
+                                   band_height, range_min, range_max))  # fmt: skip
+        log_i = {k: (np.asarray(v)[i] if fleet else v) for k, v in log.items() if k.startswith("gt_")}
         valid = ~flags["fallen"]
-        log_i = {k: (np.asarray(v)[i] if fleet else v) for k, v in log.items()
-                 if k.startswith("gt_")}  # fmt: skip
-        entry = {"name": name, "flag_counts": {k: int(v.sum()) for k, v in flags.items()},
-                 "fallen": bool(flags["fallen"].any()), "scores": _scores_one(t, est, log_i, valid, float(params.observer.f_max))}  # fmt: skip
-        summary["robots"].append(entry)
+        summary["robots"].append({
+            "name": names[-1], "flag_counts": {k: int(v.sum()) for k, v in flags.items()},
+            "fallen": bool(flags["fallen"].any()),
+            "scores": _scores_one(t, est, log_i, valid, float(params.observer.f_max)),
+        })  # fmt: skip
         if progress is not None:
             progress(i + 1, n)
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
-    return summary
+    depth_t = np.asarray(log["depth_t"]) if scans is not None else None
+    return EstimateRun(t=t, names=names, estimate=out, scans=scans, depth_t=depth_t, summary=summary)
+
+
+def write_run(run: EstimateRun, folder: str | os.PathLike) -> None:
+    """Write an EstimateRun's files into an existing folder (see the module docstring)."""
+    from jaxquad.io import TumTrajectory, atomic_open, write_tum
+    from jaxquad.io.jsonfile import write_json
+
+    folder = Path(folder)
+    out = run.estimate
+    for i, name in enumerate(run.names):
+        est = {k: getattr(out, k)[i] for k in _FIELDS}
+        flags = {f"flag_{f}": getattr(out.flags, f)[i] for f in _FLAGS}
+        write_tum(folder / f"{name}.tum", TumTrajectory(run.t, est["p_world_base"], est["q_world_base"][:, [1, 2, 3, 0]]))
+        with atomic_open(folder / f"{name}.npz") as f:
+            np.savez(f, t=run.t, **est, **flags)
+        if run.scans is not None:
+            sc = run.scans[i]
+            with atomic_open(folder / f"{name}_scans.npz") as f:
+                np.savez(f, depth_t=run.depth_t, **{k: np.asarray(getattr(sc, k)) for k in
+                                                    ("ranges_stabilized", "ranges_baseline", "bearings", "roll", "pitch")})  # fmt: skip
+    write_json(folder / "summary.json", run.summary)
+
+
+def run_estimate(
+    log, out_dir, contacts: str = "truth", params_path=None, progress=None,
+    band_height: int = 5, range_min: float = 0.2, range_max: float = 8.0,
+) -> dict:  # fmt: skip
+    """Estimate over `log` (a path to a `.npz`, or a log mapping such as a `jaxquad.sim.FleetLog`),
+    write the output folder `out_dir` (checked first; replaced whole when complete, if it holds an
+    earlier estimate), return the summary dict."""
+    from jaxquad.io import atomic_dir, check_output_dir, load_log
+    from jaxquad.robots import load
+
+    check_output_dir(out_dir, kind=SUMMARY_KIND)
+    source = None
+    if not isinstance(log, Mapping):
+        source, log = str(log), load_log(log)
+    robot = load(str(np.asarray(log["robot"])))
+    params = load_params(params_path, len(robot.foot_names), contacts)
+    run = estimate_and_score(log, contacts, params, progress, band_height, range_min, range_max, source)
+    if params_path is not None:
+        run.summary["params_file"] = str(params_path)
+    with atomic_dir(out_dir) as tmp:
+        write_run(run, tmp)
+    return run.summary

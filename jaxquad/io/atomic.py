@@ -103,11 +103,22 @@ def check_output_file(path: str | os.PathLike, what: str = "output") -> Path:
     return path
 
 
-def check_output_dir(out: str | os.PathLike, what: str = "--out") -> Path:
-    """Fail now, in one line, if folder `out` cannot be created or replaced (a file in the way, read-only)."""
+def check_output_dir(out: str | os.PathLike, what: str = "--out", kind: str | None = None) -> Path:
+    """Fail now, in one line, if folder `out` cannot be created or replaced: a file in the way, a
+    read-only place, or a non-empty folder that does not hold an earlier output of `kind` (its
+    summary.json names the kind), whose contents a run would replace."""
+    import json
+
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"{what} {out} exists and is not a folder")
+    if kind is not None and out.is_dir() and any(out.iterdir()):
+        try:
+            earlier = json.loads((out / "summary.json").read_text()).get("kind") == kind
+        except (OSError, ValueError, AttributeError):
+            earlier = False
+        if not earlier:
+            raise ValueError(f"{what} {out} is a non-empty folder that holds no earlier {kind} output; choose another")
     # atomic_dir builds beside `out`, so its parent must be writable too.
     _probe_dir(out.resolve().parent, f"{what} {out}")
     return out

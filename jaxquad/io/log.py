@@ -31,12 +31,13 @@ Other keys are kept as they are and not checked.
 from __future__ import annotations
 
 import os
-import tempfile
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
+
+from jaxquad.io.atomic import atomic_open
 
 REQUIRED = ("t", "robot", "joint_names", "q", "gyro", "acc")
 SHARED = frozenset({"t", "robot", "joint_names", "depth_t", "K", "T_base_camera"})
@@ -181,14 +182,8 @@ def save_log(path: str | os.PathLike, log: Mapping[str, np.ndarray], validate: b
     path = Path(path)
     if validate:
         validate_log(log, str(path))
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **{k: np.asarray(v) if not isinstance(v, np.ndarray) else v for k, v in log.items()})
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_open(path, "wb") as f:
+        np.savez(f, **{k: np.asarray(v) if not isinstance(v, np.ndarray) else v for k, v in log.items()})
     return path
 
 

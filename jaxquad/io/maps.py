@@ -14,10 +14,11 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from jaxquad.io.atomic import atomic_write_bytes
 
 FREE_PIXEL, OCCUPIED_PIXEL, UNKNOWN_PIXEL = 254, 0, 205
 OCCUPIED_THRESH, FREE_THRESH = 0.65, 0.196
@@ -48,17 +49,6 @@ class OccupancyMap:
         return np.stack(np.meshgrid(x, y), axis=-1)
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def save_map(yaml_path: str | os.PathLike, occ: OccupancyMap) -> Path:
     """Write `<stem>.pgm` and the YAML at `yaml_path` (each atomically); returns the YAML path."""
     import yaml
@@ -71,7 +61,7 @@ def save_map(yaml_path: str | os.PathLike, occ: OccupancyMap) -> Path:
     pixels[g / 100.0 > OCCUPIED_THRESH] = OCCUPIED_PIXEL
     rows, cols = g.shape
     header = f"P5\n{cols} {rows}\n255\n".encode()
-    _atomic_write(pgm_path, header + np.flipud(pixels).tobytes())
+    atomic_write_bytes(pgm_path, header + np.flipud(pixels).tobytes())
     meta = {
         "image": pgm_path.name,
         "mode": "trinary",
@@ -81,7 +71,7 @@ def save_map(yaml_path: str | os.PathLike, occ: OccupancyMap) -> Path:
         "occupied_thresh": OCCUPIED_THRESH,
         "free_thresh": FREE_THRESH,
     }
-    _atomic_write(yaml_path, yaml.safe_dump(meta, sort_keys=False).encode())
+    atomic_write_bytes(yaml_path, yaml.safe_dump(meta, sort_keys=False).encode())
     return yaml_path
 
 

@@ -10,10 +10,11 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from jaxquad.io.atomic import atomic_write_text
 
 
 @dataclasses.dataclass(frozen=True)
@@ -133,15 +134,4 @@ def write_tum(path: str | os.PathLike, traj: TumTrajectory, header: str | None =
     lines = [] if header is None else [f"# {h}" for h in header.splitlines()]
     # repr of a Python float is the shortest string that reads back to the same double.
     lines += [" ".join(map(repr, row)) for row in mat.tolist()]
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600; a trajectory file is an ordinary shared file
-        with os.fdopen(fd, "w") as f:
-            f.write("\n".join(lines) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_write_text(path, "\n".join(lines) + "\n")

@@ -13,6 +13,7 @@ from jaxquad.metrics._evaluate import (
 )
 from jaxquad.metrics._result import EvalResult
 from jaxquad.metrics._rpe import Pairs, pairs_by_frames, pairs_by_path, pairs_by_path_all, pairs_for, rpe
+from jaxquad.metrics._scan_map import scan_map_hits
 from jaxquad.metrics._se3 import rotation_angle, rotation_from_quat_xyzw
 from jaxquad.metrics._stats import Stats, statistics
 
@@ -20,5 +21,5 @@ __all__ = [
     "ALIGN_MODES", "DELTA_UNITS", "AlignedTrack", "Alignment", "EvalResult", "Evaluation", "Pairs",
     "PoseErrors", "Stats", "align", "ape", "associate", "evaluate", "evaluate_batch", "evaluate_poses",
     "pairs_by_frames", "pairs_by_path", "pairs_by_path_all", "pairs_for", "pose_errors", "rotation_angle",
-    "rotation_from_quat_xyzw", "rpe", "statistics", "umeyama",
+    "rotation_from_quat_xyzw", "rpe", "scan_map_hits", "statistics", "umeyama",
 ]
