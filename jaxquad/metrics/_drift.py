@@ -154,14 +154,15 @@ def evaluate_drift(
     lengths_m: Sequence[float] = DRIFT_LENGTHS_M,
     step: int = DRIFT_STEP,
 ) -> Drift:
-    """Segment drift of one associated trajectory pair (N, 3) / (N, 4) in float64, as NumPy leaves.
-    ValueError (one line) on mismatched shapes, non-finite values or bad options."""
+    """Segment drift of one associated trajectory pair (N, 3) / (N, 4) in float64, as NumPy leaves
+    (N = 0 gives NaN and 0 segments). ValueError (one line) on mismatched shapes, non-finite values
+    or bad options."""
     lengths = check_drift_options(lengths_m, step)
     arrays = [np.asarray(a, np.float64) for a in (p_ref, q_ref_xyzw, p_est, q_est_xyzw)]
     n = arrays[0].shape[0] if arrays[0].ndim == 2 else None
-    if [a.shape for a in arrays] != [(n, 3), (n, 4), (n, 3), (n, 4)] or not n:
+    if [a.shape for a in arrays] != [(n, 3), (n, 4), (n, 3), (n, 4)] or n is None:
         raise ValueError(
-            f"drift needs (N, 3), (N, 4) arrays twice with N >= 1; got {[a.shape for a in arrays]}"
+            f"drift needs (N, 3), (N, 4) arrays twice; got {[a.shape for a in arrays]}"
         )
     for name, a in zip(("reference positions", "reference quaternions", "estimate positions",
                         "estimate quaternions"), arrays):  # fmt: skip
@@ -169,6 +170,13 @@ def evaluate_drift(
             raise ValueError(f"drift: {name} have NaN or infinite values")
         if a.shape[1] == 4 and np.any(np.all(a == 0, axis=1)):
             raise ValueError(f"drift: {name} include a zero quaternion")
+    if (
+        n == 0
+    ):  # no pose, no segment: one identity pose gives that answer without empty gathers
+        arrays = [
+            np.eye(4)[[3], : a.shape[1]] if a.shape[1] == 4 else np.zeros((1, 3))
+            for a in arrays
+        ]
     with jax.enable_x64(True):
         out = _single(int(step))(
             *(jnp.asarray(a) for a in arrays), jnp.asarray(lengths)
