@@ -3,7 +3,6 @@
 import json
 
 import numpy as np
-import pytest
 from scipy.spatial.transform import Rotation
 
 from jaxquad.estimate import scores

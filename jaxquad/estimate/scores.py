@@ -108,6 +108,10 @@ def detection_delays(t, contact_est, contact_true, valid=None, max_delay_s: floa
     return out
 
 
+def _pooled(rows: Sequence[dict], key: str, n_events: int) -> float:
+    return float(sum(r[key] * r["n_matched"] for r in rows) / n_events) if n_events else float("nan")
+
+
 def aggregate_delays(per_robot: Sequence[dict]) -> dict:
     """Fleet delays from per-robot `detection_delays` results: mean_ms and mean_abs_ms pooled over
     every matched event of every robot (each robot weighted by its n_matched; robots without a
@@ -119,10 +123,9 @@ def aggregate_delays(per_robot: Sequence[dict]) -> dict:
         rows = [r[kind] for r in per_robot]
         hit = [r for r in rows if r["n_matched"] > 0]
         n_events = sum(r["n_matched"] for r in hit)
-        pooled = lambda key: sum(r[key] * r["n_matched"] for r in hit) / n_events if n_events else float("nan")
         out[kind] = {
-            "mean_ms": float(pooled("mean_ms")),
-            "mean_abs_ms": float(pooled("mean_abs_ms")),
+            "mean_ms": _pooled(hit, "mean_ms", n_events),
+            "mean_abs_ms": _pooled(hit, "mean_abs_ms", n_events),
             "n_events": int(n_events),
             "n_missed": int(sum(r["n_missed"] for r in rows)),
             "n_robots": len(rows),
