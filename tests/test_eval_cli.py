@@ -1,4 +1,4 @@
-"""`jaxquad eval`: JSON equals evo's numbers, table and plot outputs, one-line errors."""
+"""`jaxquad eval`: JSON equals evo's numbers, KITTI drift, table and plot outputs, one-line errors."""
 
 import copy
 import json
@@ -12,7 +12,12 @@ from evo.tools import file_interface
 from scipy.spatial.transform import Rotation
 
 from jaxquad.cli import main
-from jaxquad.io import TumTrajectory, write_tum
+from jaxquad.io import TumTrajectory, read_tum, write_tum
+from jaxquad.metrics import associate, evaluate_drift
+
+
+def _strict(text):
+    return json.loads(text, parse_constant=lambda c: pytest.fail(f"non-standard JSON token {c}"))
 
 
 @pytest.fixture(scope="module")
@@ -34,9 +39,9 @@ def files(tmp_path_factory):
 def test_json_matches_evo(files, capsys):
     ref, est = str(files / "ref.tum"), str(files / "est.tum")
     assert main(["eval", ref, est, "--align", "sim3", "--delta", "2", "5", "--json"]) == 0
-    out = json.loads(capsys.readouterr().out)
-    assert set(out) == {"ate", "are", "are_deg", "ape", "ape_rotation_part", "rpe_2m", "rpe_5m", "n_pairs",
-                        "alignment", "ok"}
+    out = _strict(capsys.readouterr().out)
+    assert set(out) == {"ate", "are", "are_deg", "ape", "ape_rotation_part", "rpe_2m", "rpe_5m", "drift_pct",
+                        "drift_deg_per_m", "n_pairs", "alignment", "ok"}
     r, e = sync.associate_trajectories(
         file_interface.read_tum_trajectory_file(ref), file_interface.read_tum_trajectory_file(est), max_diff=0.01)
     assert out["n_pairs"] == len(r.timestamps)
@@ -57,11 +62,35 @@ def test_json_matches_evo(files, capsys):
     np.testing.assert_allclose(a["scale"], 1 / 1.1, rtol=0.02)
 
 
+def test_json_drift_is_kitti_and_alignment_free(files, capsys):
+    ref, est = str(files / "ref.tum"), str(files / "est.tum")
+    outs = []
+    for align in ("sim3", "none"):
+        assert main(["eval", ref, est, "--align", align, "--drift-length", "2", "5", "40", "--drift-step", "4",
+                     "--json"]) == 0  # fmt: skip
+        outs.append(_strict(capsys.readouterr().out))
+    assert outs[0]["drift_pct"] == outs[1]["drift_pct"] and outs[0]["drift_deg_per_m"] == outs[1]["drift_deg_per_m"]
+    r, e = read_tum(ref), read_tum(est)
+    i, j = associate(r.t_s, e.t_s, 0.01)
+    d = evaluate_drift(r.p_world_body[i], r.q_world_body_xyzw[i], e.p_world_body[j], e.q_world_body_xyzw[j],
+                       (2.0, 5.0, 40.0), 4).to_dict()  # fmt: skip
+    for key in ("drift_pct", "drift_deg_per_m"):
+        got = outs[0][key]
+        assert got["lengths_m"] == [2.0, 5.0, 40.0] and got["step_poses"] == 4
+        assert got["n_segments"] == sum(got["n_segments_per_length"]) == d[key]["n_segments"] > 0
+        # The reference path (~38 m) is shorter than 40 m: no segment, null (NaN), never 0.
+        assert got["n_segments_per_length"][2] == 0 and got["per_length"][2] is None
+        np.testing.assert_allclose(got["per_length"][:2], d[key]["per_length"][:2], rtol=1e-12)
+        np.testing.assert_allclose(got["mean"], d[key]["mean"], rtol=1e-12)
+    assert 5.0 < outs[0]["drift_pct"]["mean"] < 15.0  # the estimate is the truth scaled by 1.1, plus noise
+
+
 def test_table_and_plot(files, capsys):
     png = files / "out.png"
     assert main(["eval", str(files / "ref.tum"), str(files / "est.tum"), "--plot", str(png)]) == 0
     text = capsys.readouterr().out
-    for label in ("ATE (m)", "ARE (rad)", "ARE (deg)", "APE (full)", "RPE 2m", "RPE 5m", "RPE 10m", "rmse"):
+    for label in ("ATE (m)", "ARE (rad)", "ARE (deg)", "APE (full)", "RPE 2m", "RPE 5m", "RPE 10m", "rmse",
+                  "drift (KITTI, unaligned)", "deg/m", "segments"):
         assert label in text
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
 
@@ -69,6 +98,8 @@ def test_table_and_plot(files, capsys):
 @pytest.mark.parametrize(("extra", "message"), [
     (["--delta", "1000"], "RPE delta 1000 m gives no pose pair"),
     (["--max-diff", "0.001"], "no matching timestamps"),
+    (["--drift-length", "-2"], "drift segment lengths must be positive"),
+    (["--drift-step", "0"], "drift step must be an integer >= 1"),
 ])
 def test_errors_are_one_line(files, capsys, extra, message):
     assert main(["eval", str(files / "ref.tum"), str(files / "est.tum"), *extra]) == 1

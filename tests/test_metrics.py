@@ -2,6 +2,7 @@
 
 import copy
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -292,8 +293,12 @@ def test_batch_flags_bad_trajectories_without_nan(fleet):
     p_ref[3] = p_est[3]
     batch = evaluate_batch(p_ref, q_ref, p_est, q_est, deltas=(2.0, 5.0, 1e4), align="sim3")
     clean = evaluate_batch(*arrays, deltas=(2.0, 5.0, 1e4), align="sim3")
-    leaves = jax.tree.leaves(batch)
+    leaves = jax.tree.leaves(eqx.tree_at(lambda r: r.drift, batch, None))
     assert all(np.all(np.isfinite(np.asarray(x))) for x in leaves if np.asarray(x).dtype.kind == "f")
+    # Drift alone is NaN, exactly where a path is shorter than the segment length (the 2.2 m line).
+    np.testing.assert_array_equal(np.isnan(np.asarray(batch.drift.trans_pct_per_length)),
+                                  np.asarray(batch.drift.n_segments_per_length) == 0)  # fmt: skip
+    np.testing.assert_array_equal(np.asarray(batch.drift.n_segments_per_length)[3, 1:], 0)
     np.testing.assert_array_equal(np.asarray(batch.ok_align), [True, False, False, False])
     # A delta longer than every path: flagged per trajectory, zero statistics.
     np.testing.assert_array_equal(np.asarray(batch.ok_rpe)[:, 2], False)

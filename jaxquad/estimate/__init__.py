@@ -6,7 +6,9 @@ from jaxquad.estimate.odometry import Pose, integrate_twist, odometry_step, se3_
 from jaxquad.estimate.inputs import CONTACT_SOURCES, RobotInputs, full_state, robot_inputs
 from jaxquad.estimate.pipeline import Estimate, Flags, PipelineConfig, PipelineParams, estimate_fleet, estimate_robot, inputs_from_log
 from jaxquad.estimate.run import estimate_log, load_params, run_estimate
-from jaxquad.estimate.scores import contact_scores, detection_delays, force_rmse, odometry_drift
+from jaxquad.estimate.scores import (
+    aggregate_delays, contact_scores, detection_delays, fleet_mean, force_rmse, odometry_drift, odometry_scores, z_error,
+)  # fmt: skip
 from jaxquad.estimate.tune import (
     ContactTruth, GridSpec, ObserverInputs, Unconstrained, fleet_scores, grid_search, gradient_tune, observer_inputs,
     save_params, surrogate_loss, tune_fleet,
@@ -19,6 +21,7 @@ __all__ = [
     "estimate_log", "estimate_robot", "force_rmse", "inputs_from_log", "integrate_twist", "load_params",
     "joint_velocities", "odometry_drift", "odometry_step", "run_estimate", "se3_exp", "full_state", "robot_inputs",
 ]
+__all__ += ["aggregate_delays", "fleet_mean", "odometry_scores", "z_error"]
 __all__ += [
     "ContactTruth", "GridSpec", "ObserverInputs", "Unconstrained", "fleet_scores", "grid_search", "gradient_tune",
     "observer_inputs", "save_params", "surrogate_loss", "tune_fleet",

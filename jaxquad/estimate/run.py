@@ -88,7 +88,7 @@ def _scores_one(t, est, log_i: dict, valid, f_max: float) -> dict:
         res["force_clipped"] = scores.force_rmse(est["force_z_filtered"], true_fz, valid, f_max)
     if "gt_pose" in log_i:
         gt = np.asarray(log_i["gt_pose"])
-        res["drift"] = scores.odometry_drift(est["p_world_base"], gt[:, :3], valid)
+        res["drift"] = scores.odometry_scores(est["p_world_base"], est["q_world_base"], gt, valid)
         res["trajectory"] = _trajectory_metrics(t, est, gt, valid)
     return res
 

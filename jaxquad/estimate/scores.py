@@ -1,14 +1,23 @@
-"""Scores of an estimate against ground truth, for one robot, in NumPy (post-processing).
+"""Scores of an estimate against ground truth, for one robot, in NumPy (post-processing), and
+their fleet aggregates.
 
 Contacts: precision, recall and F1 of the per-sample contact flags; touchdown and lift-off
 detection delays (ms) by matching every true edge with the nearest estimated edge of the same
-kind. Forces: RMSE of the vertical force (N). Leg odometry: end-point drift in % of the
-distance travelled, horizontal (x, y) and 3D. Every function takes an optional per-sample
-`valid` mask; samples outside it are ignored. Ratios with an empty denominator are 0 and the
-counts they come from are returned with them, so no NaN reaches a summary.
+kind. Forces: RMSE of the vertical force (N). Leg odometry (`odometry_scores`): KITTI segment
+drift (% and deg/m over 2/5/10 m of true path, `jaxquad.metrics.segment_drift`), the end-point
+drift (`odometry_drift`) and the vertical error. Every function takes an optional per-sample
+`valid` mask; samples outside it are ignored.
+
+A figure with nothing to average (no matched edge, no sample, no segment, no distance) is NaN,
+never 0, and comes with the count that says so; write summaries with `jaxquad.io.to_json`
+(NaN -> null). Contact precision/recall/F1 keep the usual convention of 0 for an empty
+denominator, with the counts beside them. Fleet figures pool events or weight by counts and say
+how many robots and events they average (`aggregate_delays`, `fleet_mean`).
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -19,6 +28,10 @@ def _mask(valid, n: int) -> np.ndarray:
 
 def _ratio(num: float, den: float) -> float:
     return float(num / den) if den > 0 else 0.0
+
+
+def _nan_ratio(num: float, den: float) -> float:
+    return float(num / den) if den > 0 else float("nan")
 
 
 def contact_scores(contact_est, contact_true, valid=None) -> dict:
@@ -60,7 +73,7 @@ def detection_delays(t, contact_est, contact_true, valid=None, max_delay_s: floa
 
     Each true edge (of a foot, inside `valid`) is matched to the nearest estimated edge of the
     same kind on that foot within max_delay_s; negative delays mean early detection. Unmatched
-    true edges count as missed.
+    true edges count as missed. With no matched edge the delays are NaN and n_matched is 0.
     """
     t = np.asarray(t, float)
     est = np.asarray(contact_est, bool)
@@ -84,13 +97,73 @@ def detection_delays(t, contact_est, contact_true, valid=None, max_delay_s: floa
                 else:
                     missed += 1
         d = np.asarray(delays)
+        nan = float("nan")
         out[name] = {
-            "mean_ms": float(d.mean()) if d.size else 0.0,
-            "median_ms": float(np.median(d)) if d.size else 0.0,
-            "mean_abs_ms": float(np.abs(d).mean()) if d.size else 0.0,
-            "matched": int(d.size),
-            "missed": missed,
+            "mean_ms": float(d.mean()) if d.size else nan,
+            "median_ms": float(np.median(d)) if d.size else nan,
+            "mean_abs_ms": float(np.abs(d).mean()) if d.size else nan,
+            "n_matched": int(d.size),
+            "n_missed": missed,
         }
+    return out
+
+
+def _pooled(rows: Sequence[dict], key: str, n_events: int) -> float:
+    return float(sum(r[key] * r["n_matched"] for r in rows) / n_events) if n_events else float("nan")
+
+
+def aggregate_delays(per_robot: Sequence[dict]) -> dict:
+    """Fleet delays from per-robot `detection_delays` results: mean_ms and mean_abs_ms pooled over
+    every matched event of every robot (each robot weighted by its n_matched; robots without a
+    match contribute nothing), NaN when no robot matched any. Per kind: mean_ms, mean_abs_ms,
+    n_events (matched events averaged), n_missed, n_robots (robots given), n_robots_matched (robots
+    with at least one match). Medians do not pool and are left out."""
+    out = {}
+    for kind in ("touchdown", "liftoff"):
+        rows = [r[kind] for r in per_robot]
+        hit = [r for r in rows if r["n_matched"] > 0]
+        n_events = sum(r["n_matched"] for r in hit)
+        out[kind] = {
+            "mean_ms": _pooled(hit, "mean_ms", n_events),
+            "mean_abs_ms": _pooled(hit, "mean_abs_ms", n_events),
+            "n_events": int(n_events),
+            "n_missed": int(sum(r["n_missed"] for r in rows)),
+            "n_robots": len(rows),
+            "n_robots_matched": len(hit),
+        }
+    return out
+
+
+def _lookup(d: dict, path: Sequence[str]):
+    for key in path:
+        if not isinstance(d, dict) or key not in d:
+            return None
+        d = d[key]
+    return d
+
+
+def fleet_mean(per_robot: Sequence[dict], path: Sequence[str], weight: Sequence[str] | None = None) -> dict:
+    """Mean over robots of the score at key `path` of each per-robot dict (e.g. ("drift", "drift_pct",
+    "mean")), skipping robots where it is missing or not finite. With `weight` (a key path to a count,
+    e.g. ("drift", "drift_pct", "n_segments")) robots are weighted by it, which pools the events when
+    the score is a per-robot mean. Returns mean (NaN when nothing is averaged), n_robots (robots
+    averaged), n_skipped, and with a weight, weight_sum."""
+    vals, weights = [], []
+    for r in per_robot:
+        v = _lookup(r, path)
+        w = 1.0 if weight is None else _lookup(r, weight)
+        if v is None or w is None or not np.isfinite(v) or not np.isfinite(w) or (weight is not None and w <= 0):
+            continue
+        vals.append(float(v))
+        weights.append(float(w))
+    total = sum(weights)
+    out = {
+        "mean": sum(v * w for v, w in zip(vals, weights)) / total if total > 0 else float("nan"),
+        "n_robots": len(vals),
+        "n_skipped": len(per_robot) - len(vals),
+    }
+    if weight is not None:
+        out["weight_sum"] = total
     return out
 
 
@@ -106,30 +179,71 @@ def force_rmse(force_z_est, force_z_true, valid=None, max_force_n: float | None 
     m = _mask(valid, est.shape[0])
     sq = (est[m] - true[m]) ** 2
     n = sq.shape[0]
-    per_foot = [float(np.sqrt(s.mean())) if n else 0.0 for s in sq.T]
-    return {"rmse_n": float(np.sqrt(sq.mean())) if n else 0.0, "rmse_per_foot_n": per_foot, "samples": n}
+    nan = float("nan")
+    per_foot = [float(np.sqrt(s.mean())) if n else nan for s in sq.T]
+    return {"rmse_n": float(np.sqrt(sq.mean())) if n else nan, "rmse_per_foot_n": per_foot, "samples": n}
 
 
 def odometry_drift(p_est, p_true, valid=None) -> dict:
-    """End-point drift of a trajectory (T, 3) in % of the true distance travelled.
+    """End-point drift of a trajectory (T, 3): the end point's error over the true distance travelled,
+    in %, horizontal (x, y) and 3D.
 
-    Both trajectories are taken relative to their first valid sample, so the drift is the
-    error accumulated over the run: |(p_est[-1] - p_est[0]) - (p_true[-1] - p_true[0])|
-    over the true path length, horizontal (x, y) and 3D.
+    Both trajectories are taken relative to their first valid sample, so the figure is
+    |(p_est[-1] - p_est[0]) - (p_true[-1] - p_true[0])| over the true path length. On a loop the
+    truth ends near its start, so an estimate that never moves scores about as well as one that
+    walks: read it beside the segment drift of `odometry_scores`. NaN with fewer than 2 samples or
+    no distance travelled.
     """
     est = np.asarray(p_est, float)
     true = np.asarray(p_true, float)
     m = _mask(valid, est.shape[0])
     est, true = est[m], true[m]
     if est.shape[0] < 2:
-        return {"horizontal_pct": 0.0, "3d_pct": 0.0, "distance_m": 0.0, "horizontal_distance_m": 0.0}
+        nan = float("nan")
+        return {"endpoint_drift_horizontal_pct": nan, "endpoint_drift_3d_pct": nan, "distance_m": 0.0,
+                "horizontal_distance_m": 0.0}  # fmt: skip
     err = (est[-1] - est[0]) - (true[-1] - true[0])
     step = np.diff(true, axis=0)
     dist3 = float(np.linalg.norm(step, axis=1).sum())
     dist2 = float(np.linalg.norm(step[:, :2], axis=1).sum())
     return {
-        "horizontal_pct": 100.0 * _ratio(np.linalg.norm(err[:2]), dist2),
-        "3d_pct": 100.0 * _ratio(np.linalg.norm(err), dist3),
+        "endpoint_drift_horizontal_pct": 100.0 * _nan_ratio(np.linalg.norm(err[:2]), dist2),
+        "endpoint_drift_3d_pct": 100.0 * _nan_ratio(np.linalg.norm(err), dist3),
         "distance_m": dist3,
         "horizontal_distance_m": dist2,
     }
+
+
+def z_error(p_est, p_true, valid=None) -> dict:
+    """Vertical error of the base (m), estimate minus truth, in the world frame both share:
+    z_error_final_m at the last valid sample (signed; negative = below the truth) and z_error_rms_m
+    over the valid samples. NaN without a valid sample."""
+    est = np.asarray(p_est, float)
+    true = np.asarray(p_true, float)
+    m = _mask(valid, est.shape[0])
+    dz = est[m, 2] - true[m, 2]
+    if dz.size == 0:
+        return {"z_error_final_m": float("nan"), "z_error_rms_m": float("nan")}
+    return {"z_error_final_m": float(dz[-1]), "z_error_rms_m": float(np.sqrt(np.mean(dz * dz)))}
+
+
+def odometry_scores(
+    p_est, q_est_wxyz, pose_true, valid=None, lengths_m: Sequence[float] = (2.0, 5.0, 10.0), step: int = 10
+) -> dict:
+    """Leg-odometry scores of one robot against its true pose (T, 7: x y z qw qx qy qz).
+
+    drift_pct / drift_deg_per_m: KITTI segment drift over the valid samples (see
+    `jaxquad.metrics.segment_drift`: mean over every segment of every length in lengths_m, starts
+    every `step` samples, with per_length values and the segment counts; NaN with 0 segments when
+    the path is shorter than every length). Beside it the end-point figures of `odometry_drift` and
+    the vertical error of `z_error`.
+    """
+    from jaxquad.metrics import evaluate_drift
+
+    p_est = np.asarray(p_est, float)
+    q_est = np.asarray(q_est_wxyz, float)
+    true = np.asarray(pose_true, float)
+    m = _mask(valid, p_est.shape[0])
+    xyzw = [1, 2, 3, 0]
+    drift = evaluate_drift(true[m, :3], true[m][:, 3:7][:, xyzw], p_est[m], q_est[m][:, xyzw], lengths_m, step)
+    return {**drift.to_dict(), **odometry_drift(p_est, true[:, :3], m), **z_error(p_est, true[:, :3], m)}

@@ -1,8 +1,10 @@
-"""Trajectory evaluation with the definitions of evo: association, Umeyama alignment, APE, RPE."""
+"""Trajectory evaluation with the definitions of evo (association, Umeyama alignment, APE, RPE) and
+KITTI's segment drift (t_rel %, r_rel deg/m)."""
 
 from jaxquad.metrics._align import ALIGN_MODES, Alignment, align, umeyama
 from jaxquad.metrics._ape import PoseErrors, ape, pose_errors
 from jaxquad.metrics._associate import associate
+from jaxquad.metrics._drift import DRIFT_LENGTHS_M, DRIFT_STEP, Drift, evaluate_drift, segment_drift, segment_pairs
 from jaxquad.metrics._evaluate import (
     DELTA_UNITS,
     AlignedTrack,
@@ -18,8 +20,9 @@ from jaxquad.metrics._se3 import rotation_angle, rotation_from_quat_xyzw
 from jaxquad.metrics._stats import Stats, statistics
 
 __all__ = [
-    "ALIGN_MODES", "DELTA_UNITS", "AlignedTrack", "Alignment", "EvalResult", "Evaluation", "Pairs",
-    "PoseErrors", "Stats", "align", "ape", "associate", "evaluate", "evaluate_batch", "evaluate_poses",
-    "pairs_by_frames", "pairs_by_path", "pairs_by_path_all", "pairs_for", "pose_errors", "rotation_angle",
-    "rotation_from_quat_xyzw", "rpe", "scan_map_hits", "statistics", "umeyama",
+    "ALIGN_MODES", "DELTA_UNITS", "DRIFT_LENGTHS_M", "DRIFT_STEP", "AlignedTrack", "Alignment", "Drift",
+    "EvalResult", "Evaluation", "Pairs", "PoseErrors", "Stats", "align", "ape", "associate", "evaluate",
+    "evaluate_batch", "evaluate_drift", "evaluate_poses", "pairs_by_frames", "pairs_by_path", "pairs_by_path_all",
+    "pairs_for", "pose_errors", "rotation_angle", "rotation_from_quat_xyzw", "rpe", "scan_map_hits", "segment_drift",
+    "segment_pairs", "statistics", "umeyama",
 ]

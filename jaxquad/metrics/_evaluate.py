@@ -21,6 +21,7 @@ from jaxquad.io.tum import TumTrajectory
 from jaxquad.metrics._align import ALIGN_MODES, align as align_poses
 from jaxquad.metrics._ape import PoseErrors, ape
 from jaxquad.metrics._associate import associate
+from jaxquad.metrics._drift import DRIFT_LENGTHS_M, DRIFT_STEP, check_drift_options, segment_drift
 from jaxquad.metrics._result import EvalResult
 from jaxquad.metrics._rpe import pairs_for, rpe
 from jaxquad.metrics._se3 import rotation_from_quat_xyzw
@@ -43,16 +44,19 @@ def evaluate_poses(
     p_est: Float[Array, "N 3"],
     q_est_xyzw: Float[Array, "N 4"],
     deltas: Float[Array, "D"],
+    drift_lengths_m: Float[Array, "L"] = DRIFT_LENGTHS_M,
     *,
     align: str = "se3",
     delta_unit: str = "m",
     all_pairs: bool = False,
     rel_tol: float = 0.1,
+    drift_step: int = DRIFT_STEP,
 ) -> tuple[EvalResult, AlignedTrack]:
     """Paper metrics of one associated trajectory pair (pose k of the estimate belongs to pose k of
-    the reference). Non-finite positions or zero/non-finite quaternions are replaced by the origin
-    and identity and clear `ok_align`, so one bad trajectory of a batch gives a flagged, finite
-    result. Static: align, delta_unit, all_pairs, rel_tol; deltas are traced."""
+    the reference), plus KITTI segment drift of the unaligned estimate. Non-finite positions or
+    zero/non-finite quaternions are replaced by the origin and identity and clear `ok_align`, so one
+    bad trajectory of a batch gives a flagged result. Static: align, delta_unit, all_pairs, rel_tol,
+    drift_step; deltas and drift lengths are traced."""
     dtype = p_ref.dtype
 
     def sanitize(p, q):
@@ -75,6 +79,8 @@ def evaluate_poses(
     pairs = jax.vmap(lambda d: pairs_for(p_al, d, delta_unit, all_pairs, rel_tol))(deltas)
     rpe_trans = jax.vmap(lambda pr: rpe(p_ref, R_ref, p_al, R_al, pr).translation_m)(pairs)
     rpe_stats = jax.vmap(statistics)(rpe_trans, pairs.mask)
+    # Drift compares relative poses, so it needs no alignment (and must not see a sim3 scale).
+    drift = segment_drift(p_ref, R_ref, p_est, R_est, drift_lengths_m, drift_step)
 
     ok_align = alignment.ok & ok_input
     result = EvalResult(
@@ -89,6 +95,7 @@ def evaluate_poses(
         alignment=alignment,
         ok_align=ok_align,
         ok_rpe=rpe_stats.n > 0,
+        drift=drift,
         align_mode=align,
         delta_unit=delta_unit,
     )
@@ -111,19 +118,23 @@ def _check_options(align: str, deltas: Sequence[float], delta_unit: str) -> np.n
 
 
 @functools.cache
-def _single(align: str, delta_unit: str, all_pairs: bool, rel_tol: float):
+def _single(align: str, delta_unit: str, all_pairs: bool, rel_tol: float, drift_step: int = DRIFT_STEP):
     return jax.jit(functools.partial(
-        evaluate_poses, align=align, delta_unit=delta_unit, all_pairs=all_pairs, rel_tol=rel_tol
+        evaluate_poses, align=align, delta_unit=delta_unit, all_pairs=all_pairs, rel_tol=rel_tol,
+        drift_step=drift_step,
     ))
 
 
 @functools.cache
-def _batched(align: str, delta_unit: str, all_pairs: bool, rel_tol: float):
+def _batched(align: str, delta_unit: str, all_pairs: bool, rel_tol: float, drift_step: int = DRIFT_STEP):
     one = functools.partial(
-        evaluate_poses, align=align, delta_unit=delta_unit, all_pairs=all_pairs, rel_tol=rel_tol
+        evaluate_poses, align=align, delta_unit=delta_unit, all_pairs=all_pairs, rel_tol=rel_tol,
+        drift_step=drift_step,
     )
     # Only the statistics leave the jitted function; per-pose arrays are dropped inside it.
-    return jax.jit(jax.vmap(lambda pr, qr, pe, qe, d: one(pr, qr, pe, qe, d)[0], in_axes=(0, 0, 0, 0, None)))
+    return jax.jit(jax.vmap(
+        lambda pr, qr, pe, qe, d, lengths: one(pr, qr, pe, qe, d, lengths)[0], in_axes=(0, 0, 0, 0, None, None)
+    ))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -150,11 +161,16 @@ def evaluate(
     all_pairs: bool = False,
     max_diff_s: float = 0.01,
     rel_tol: float = 0.1,
+    drift_lengths_m: Sequence[float] = DRIFT_LENGTHS_M,
+    drift_step: int = DRIFT_STEP,
 ) -> Evaluation:
     """Associate, align and evaluate an estimate against a reference in float64, as evo does
-    (evo_ape / evo_rpe with the same options). ValueError (one line) when no stamps match, the
-    alignment is impossible (fewer than 3 poses, degenerate positions) or a delta gives no pair."""
+    (evo_ape / evo_rpe with the same options), plus KITTI segment drift (alignment-free; NaN with 0
+    segments when the reference path is shorter than every length). ValueError (one line) when no
+    stamps match, the alignment is impossible (fewer than 3 poses, degenerate positions) or a delta
+    gives no pair."""
     d = _check_options(align, deltas, delta_unit)
+    lengths = check_drift_options(drift_lengths_m, drift_step)
     for name, tr in (("reference", ref), ("estimate", est)):
         q = tr.q_world_body_xyzw
         if not (np.all(np.isfinite(tr.p_world_body)) and np.all(np.isfinite(q))):
@@ -167,12 +183,13 @@ def evaluate(
         raise ValueError(f"{align} alignment needs at least 3 associated poses, got {n}")
     ref_a, est_a = ref.subset(idx_ref), est.subset(idx_est)
     with jax.enable_x64(True):
-        res, track = _single(align, delta_unit, bool(all_pairs), float(rel_tol))(
+        res, track = _single(align, delta_unit, bool(all_pairs), float(rel_tol), int(drift_step))(
             jnp.asarray(ref_a.p_world_body, jnp.float64),
             jnp.asarray(ref_a.q_world_body_xyzw, jnp.float64),
             jnp.asarray(est_a.p_world_body, jnp.float64),
             jnp.asarray(est_a.q_world_body_xyzw, jnp.float64),
             jnp.asarray(d, jnp.float64),
+            jnp.asarray(lengths, jnp.float64),
         )
         res, track = jax.tree.map(np.asarray, (res, track))
     if not res.ok_align:
@@ -201,14 +218,19 @@ def evaluate_batch(
     delta_unit: str = "m",
     all_pairs: bool = False,
     rel_tol: float = 0.1,
+    drift_lengths_m: Sequence[float] = DRIFT_LENGTHS_M,
+    drift_step: int = DRIFT_STEP,
 ) -> EvalResult:
     """Metrics of B associated trajectory pairs of N poses each, jitted and vmapped (float32 unless
-    the caller enabled float64). Never raises on data: check `ok_align` / `ok_rpe` per trajectory."""
+    the caller enabled float64). Never raises on data: check `ok_align` / `ok_rpe` per trajectory and
+    `drift.n_segments` (drift is NaN where it is 0)."""
     d = _check_options(align, deltas, delta_unit)
+    lengths = check_drift_options(drift_lengths_m, drift_step)
     shapes = [np.shape(a) for a in (p_ref, q_ref_xyzw, p_est, q_est_xyzw)]
     b, n = shapes[0][:2] if len(shapes[0]) == 3 else (None, None)
     if shapes != [(b, n, 3), (b, n, 4), (b, n, 3), (b, n, 4)] or b is None:
         raise ValueError(f"batched trajectories must have shapes (B, N, 3), (B, N, 4) twice; got {shapes}")
-    fn = _batched(align, delta_unit, bool(all_pairs), float(rel_tol))
-    return fn(jnp.asarray(p_ref), jnp.asarray(q_ref_xyzw), jnp.asarray(p_est), jnp.asarray(q_est_xyzw), jnp.asarray(d))
+    fn = _batched(align, delta_unit, bool(all_pairs), float(rel_tol), int(drift_step))
+    arrays = [jnp.asarray(a) for a in (p_ref, q_ref_xyzw, p_est, q_est_xyzw)]
+    return fn(*arrays, jnp.asarray(d, arrays[0].dtype), jnp.asarray(lengths, arrays[0].dtype))
 

@@ -7,6 +7,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from jaxquad.metrics._align import Alignment
+from jaxquad.metrics._drift import Drift
 from jaxquad.metrics._stats import Stats
 
 
@@ -22,7 +23,8 @@ class EvalResult(eqx.Module):
     transformation (dimensionless). ape_rotation_part: ||R(E) - I||_F. rpe: RPE translation (m) with
     a leading axis over `deltas` (metres or frames, see `delta_unit`). n_poses: associated poses.
     `ok` is False when the alignment was degenerate or a delta produced no pose pair; the statistics
-    concerned are then zero, never NaN.
+    concerned are then zero, never NaN. drift: KITTI segment drift of the unaligned estimate, NaN
+    where its segment count is 0 (a path shorter than the segment length); `ok` does not cover it.
     """
 
     ate: Stats
@@ -36,6 +38,7 @@ class EvalResult(eqx.Module):
     alignment: Alignment
     ok_align: Bool[Array, "*b"]
     ok_rpe: Bool[Array, "*b D"]
+    drift: Drift
     align_mode: str = eqx.field(static=True)
     delta_unit: str = eqx.field(static=True)
 
@@ -49,8 +52,9 @@ class EvalResult(eqx.Module):
         return Stats(*(take(getattr(self.rpe, f)) for f in ("rmse", "mean", "median", "std", "min", "max", "n")))
 
     def to_dict(self) -> dict:
-        """JSON-ready dict: keys ate, are, are_deg, ape, ape_rotation_part, rpe_<delta><unit>, n_pairs,
-        alignment (mode, rotation, translation, scale), ok. Batched results give lists."""
+        """Dict of keys ate, are, are_deg, ape, ape_rotation_part, rpe_<delta><unit>, drift_pct,
+        drift_deg_per_m, n_pairs, alignment (mode, rotation, translation, scale), ok. Batched results
+        give lists. Drift may hold NaN: write it with `jaxquad.io.to_json` (NaN -> null)."""
         out = {
             "ate": self.ate.to_dict(),
             "are": self.are.to_dict(),
@@ -64,6 +68,7 @@ class EvalResult(eqx.Module):
                 **self.rpe_at(k).to_dict(),
                 "n_pairs": np.asarray(self.rpe.n)[..., k].tolist(),
             }
+        out.update(self.drift.to_dict())
         out["n_pairs"] = np.asarray(self.n_poses).tolist()
         out["alignment"] = {
             "mode": self.align_mode,

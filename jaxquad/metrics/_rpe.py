@@ -14,7 +14,7 @@ from jaxtyping import Array, Bool, Float, Int
 from jaxquad.metrics._ape import PoseErrors, pose_errors
 
 class Pairs(eqx.Module):
-    """Index pairs (i, j), i < j, in N - 1 slots; slots with mask False hold (0, 0)."""
+    """Index pairs (i, j), i < j, in static slots (N - 1 for RPE); slots with mask False hold (0, 0)."""
 
     i: Int[Array, "M"]
     j: Int[Array, "M"]

@@ -1,9 +1,10 @@
-"""`jaxquad eval REF.tum EST.tum`: the paper's trajectory metrics (ATE, ARE, APE, RPE) as evo computes them."""
+"""`jaxquad eval REF.tum EST.tum`: the paper's trajectory metrics (ATE, ARE, APE, RPE) as evo computes them,
+and KITTI's segment drift."""
 
 from __future__ import annotations
 
 import argparse
-import json
+import math
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,7 +24,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--max-diff", type=float, default=0.01, metavar="S",
         help="max. time difference in seconds when associating stamps (default: 0.01)",
     )
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument(
+        "--drift-length", type=float, nargs="+", default=[2.0, 5.0, 10.0], metavar="L",
+        help="segment lengths of the KITTI drift, metres of reference path (default: 2 5 10). drift_pct is "
+        "|t((gt_i^-1 gt_j)^-1 (est_i^-1 est_j))| / L in %%, drift_deg_per_m its rotation angle / L, with j the "
+        "first pose whose reference path from i exceeds L, averaged over every segment of every length. Uses "
+        "relative poses of the unaligned estimate, so --align does not change it; null with 0 segments when "
+        "the reference path is shorter than L",
+    )
+    parser.add_argument(
+        "--drift-step", type=int, default=10, metavar="N",
+        help="poses between segment starts of the drift (default: 10, as KITTI)",
+    )
+    parser.add_argument(
+        "--json", action="store_true",
+        help="print one JSON object (NaN written as null): ate, are, are_deg, ape, ape_rotation_part, rpe_<D>, "
+        "drift_pct and drift_deg_per_m (mean, per_length, lengths_m, n_segments, n_segments_per_length, "
+        "step_poses), n_pairs, alignment, ok",
+    )
     parser.add_argument("--plot", metavar="OUT.png", help="write the xy trajectories and the error over time")
 
 
@@ -37,19 +55,27 @@ def _table(d: dict) -> str:
     lines += [name.ljust(width) + "".join(f"{s[c]:12.6g}" for c in cols) for name, s in rows]
     a = d["alignment"]
     lines.append(f"{d['n_pairs']} associated poses; alignment {a['mode']}, scale {a['scale']:.9g}")
+    t, r = d["drift_pct"], d["drift_deg_per_m"]
+    fmt = lambda x: "n/a" if x is None or math.isnan(x) else f"{x:.4g}"
+    per = lambda s: ", ".join(f"{length:g} m: {fmt(v)}" for length, v in zip(s["lengths_m"], s["per_length"]))
+    lines.append(f"drift (KITTI, unaligned) {fmt(t['mean'])} % ({per(t)}), {fmt(r['mean'])} deg/m ({per(r)}); "
+                 f"{t['n_segments']} segments ({', '.join(map(str, t['n_segments_per_length']))}), "
+                 f"starts every {t['step_poses']} poses")
     return "\n".join(lines)
 
 
 def run(args: argparse.Namespace) -> int:
+    from jaxquad.io.jsonfile import to_json
     from jaxquad.io.tum import read_tum
     from jaxquad.metrics._evaluate import evaluate
 
     ev = evaluate(
         read_tum(args.ref), read_tum(args.est), align=args.align, deltas=args.delta,
         delta_unit=args.delta_unit, all_pairs=args.all_pairs, max_diff_s=args.max_diff,
+        drift_lengths_m=args.drift_length, drift_step=args.drift_step,
     )
     d = ev.to_dict()
-    print(json.dumps(d) if args.json else _table(d))
+    print(to_json(d) if args.json else _table(d))
     if args.plot:
         from jaxquad.metrics.plot import plot_evaluation
 
