@@ -21,7 +21,7 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "jaxquad" / "ros" / "examples"
 JOINTS = load("go2").joint_names
 T0_NS = 1_700_000_000_000_000_000  # ROS time of the first sample
 N, DT_NS = 120, 4_000_000
-H, W = 6, 8
+H, W = 12, 16
 
 
 def _truth(seed: int = 0) -> dict:
@@ -55,9 +55,10 @@ def _tf_matrix() -> np.ndarray:
     return T
 
 
-def _write_generic(path: Path, fmt: str, d: dict, msg_names=None, drop=slice(0, 0), encoding="16UC1") -> None:
-    names = list(msg_names or JOINTS)
-    perm = [JOINTS.index(n) if n in JOINTS else JOINTS.index("FL_hip_joint") for n in names]
+def _write_generic(path: Path, fmt: str, d: dict, rename=None, drop=slice(0, 0), encoding="16UC1") -> None:
+    """Standard messages; the JointState lists the joints shuffled, with names renamed by `rename`."""
+    perm = list(np.random.default_rng(9).permutation(len(JOINTS)))
+    names = [(rename or {}).get(JOINTS[k], JOINTS[k]) for k in perm]
     with bag_writer(path, fmt) as w:
         m, ty = w.msgs, w.msgs.types
         ns = d["t"]
@@ -140,3 +141,160 @@ def test_generic_bag_converts_to_the_same_arrays(tmp_path, fmt):
     np.testing.assert_allclose(log["depth_t"], (d["depth_t"] - T0_NS) * 1e-9, atol=1e-12)
     np.testing.assert_allclose(log["K"], d["K"])
     np.testing.assert_allclose(log["T_base_camera"], _tf_matrix(), atol=1e-12)
+
+
+def _write_lowstate(path: Path, fmt: str, d: dict, types: dict) -> None:
+    """The vendor LowState stream (no header: stamped by receive time), motors in FR FL RR RL order."""
+    motor_order = [JOINTS.index(f"{leg}_{j}_joint") for leg in ("FR", "FL", "RR", "RL") for j in ("hip", "thigh", "calf")]
+    with bag_writer(path, fmt, types) as w:
+        ty = w.msgs.types
+        for i, t in enumerate(d["t"]):
+            motors = [ty["example_quad/msg/MotorState"](mode=1, q=d["q"][i, k], dq=d["qd"][i, k], ddq=0.0, tau_est=d["tau"][i, k])
+                      for k in motor_order] + [ty["example_quad/msg/MotorState"](mode=0, q=0.0, dq=0.0, ddq=0.0, tau_est=0.0)] * 8  # fmt: skip
+            imu = ty["example_quad/msg/IMUState"](
+                quaternion=d["quat_wxyz"][i].astype(np.float32), gyroscope=d["gyro"][i].astype(np.float32),
+                accelerometer=d["acc"][i].astype(np.float32), rpy=np.zeros(3, np.float32), temperature=30)  # fmt: skip
+            feet = np.round(d["foot_force"][i][[1, 0, 3, 2]]).astype(np.int16)  # FR FL RR RL
+            msg = ty["example_quad/msg/LowState"](imu_state=imu, motor_state=motors, foot_force=feet, tick=i)
+            w.write("/lowstate", "example_quad/msg/LowState", t, msg)
+
+
+def _lowstate_topics(raw: dict) -> None:
+    for role in ("depth", "camera_info", "T_base_camera", "ground_truth"):
+        raw.pop(role)
+
+
+def _vendor_types() -> dict:
+    return {f"example_quad/msg/{n}": (EXAMPLES / "msg/example_quad/msg" / f"{n}.msg").read_text()
+            for n in ("LowState", "MotorState", "IMUState")}  # fmt: skip
+
+
+def _strip_definitions(bag: Path) -> None:
+    """Make a ROS 2 sqlite3 bag look recorded before Humble: no message definitions inside."""
+    with sqlite3.connect(next(bag.glob("*.db3"))) as db:
+        db.execute("DELETE FROM message_definitions")
+    meta = bag / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("type_description_hash: RIHS01_", "type_description_hash: X"))
+
+
+@pytest.mark.parametrize("fmt", ["ros1", "sqlite3"])
+def test_vendor_lowstate_converts_in_robot_order(tmp_path, fmt):
+    d = _truth(1)
+    bag = tmp_path / ("low.bag" if fmt == "ros1" else "low")
+    _write_lowstate(bag, fmt, d, _vendor_types())
+    if fmt == "sqlite3":
+        _strip_definitions(bag)
+        no_types = _topics(tmp_path, lambda r: (_lowstate_topics(r), r.pop("types")), "go2_lowstate.yaml")
+        with pytest.raises(ValueError, match="example_quad/msg/LowState.*unknown.*'types'"):
+            convert_bag(bag, no_types, "go2")
+    log = convert_bag(bag, _topics(tmp_path, _lowstate_topics, "go2_lowstate.yaml"), "go2")
+    f32 = lambda a: a.astype(np.float32).astype(np.float64)  # noqa: E731
+    for key in ("q", "qd", "tau", "gyro", "acc"):
+        np.testing.assert_array_equal(log[key], f32(d[key]), err_msg=key)
+    q32 = f32(d["quat_wxyz"])
+    np.testing.assert_allclose(log["quat_wxyz"], q32 / np.linalg.norm(q32, axis=1, keepdims=True), atol=1e-12)
+    np.testing.assert_array_equal(log["foot_force"], np.round(d["foot_force"]))
+    np.testing.assert_allclose(log["t"], (d["t"] - T0_NS) * 1e-9, atol=1e-12)
+
+
+def test_gaps_stay_gaps_and_linear_interpolation_bridges_within_tolerance(tmp_path):
+    d = _truth(2)
+    bag = tmp_path / "gap"
+    _write_generic(bag, "mcap", d, drop=slice(40, 60))  # joints missing for 80 ms
+    t = (d["t"] - T0_NS) * 1e-9
+    log = convert_bag(bag, _topics(tmp_path), "go2")
+    gap = np.zeros(N, bool)
+    gap[40:60] = True
+    assert np.all(np.isnan(log["q"][gap])) and np.all(np.isfinite(log["q"][~gap]))
+    log = convert_bag(bag, _topics(tmp_path, lambda r: r.update(tolerance_s=0.05)), "go2")
+    keep = ~gap
+    for j in range(12):  # a gap of 84 ms between neighbours: bridged where both lie within 50 ms
+        ref = np.interp(t, t[keep], d["q"][keep, j])
+        inside = gap & (t - t[39] <= 0.05) & (t[60] - t <= 0.05)
+        np.testing.assert_allclose(log["q"][inside | keep, j], ref[inside | keep], atol=1e-12)
+        assert np.all(np.isnan(log["q"][gap & ~inside, j]))
+
+
+def test_resample_matches_references():
+    from jaxquad.ros.resample import resample, resample_quat
+
+    rng = np.random.default_rng(3)
+    s = np.cumsum(rng.uniform(0.002, 0.006, 200))
+    x = rng.normal(size=(200, 2))
+    t = np.linspace(s[0] - 0.01, s[-1] + 0.01, 333)
+    tol = 0.004
+    lin = resample(s, x, t, "linear", tol)
+    near = resample(s, x, t, "nearest", tol)
+    for k, tk in enumerate(t):
+        j = int(np.argmin(np.abs(s - tk)))
+        want = x[j] if abs(s[j] - tk) <= tol else np.full(2, np.nan)
+        np.testing.assert_array_equal(near[k], want)
+        lo, hi = s[s <= tk], s[s > tk]
+        ok = lo.size and (lo[-1] == tk or (hi.size and tk - lo[-1] <= tol and hi[0] - tk <= tol))
+        want = [np.interp(tk, s, x[:, c]) for c in range(2)] if ok else np.full(2, np.nan)
+        np.testing.assert_allclose(lin[k], want, atol=1e-12)
+    rot = Rotation.random(200, random_state=4)
+    q = rot.as_quat()[:, [3, 0, 1, 2]]
+    out = resample_quat(s, q, t, "linear", tol)
+    ok = np.isfinite(out[:, 0])
+    from scipy.spatial.transform import Slerp
+
+    ref = Slerp(s, rot)(t[ok]).as_quat()[:, [3, 0, 1, 2]]
+    np.testing.assert_allclose(np.abs(np.sum(out[ok] * ref, axis=1)), 1.0, atol=1e-9)
+
+
+def test_32fc1_depth_in_metres_with_nan_as_invalid(tmp_path):
+    d = _truth(4)
+    bag = tmp_path / "f32"
+    _write_generic(bag, "mcap", d, encoding="32FC1")
+    log = convert_bag(bag, _topics(tmp_path), "go2")
+    want = (d["depth_mm"] / 1000.0).astype(np.float32)
+    np.testing.assert_array_equal(log["depth"], want)
+    assert np.all(log["depth"][:, 0, :3] == 0)
+
+
+@pytest.fixture(scope="module")
+def generic_bag(tmp_path_factory) -> Path:
+    bag = tmp_path_factory.mktemp("bag") / "rec"
+    _write_generic(bag, "mcap", _truth(5))
+    return bag
+
+
+def _raises(bag, topics, match):
+    with pytest.raises(ValueError, match=match):
+        convert_bag(bag, topics, "go2")
+
+
+def test_error_unknown_topic_lists_the_bags_topics(tmp_path, generic_bag):
+    topics = _topics(tmp_path, lambda r: r["imu"].update(topic="/imu/raw"))
+    _raises(generic_bag, topics, r"topic '/imu/raw' \(imu\) not found; the bag has: .*/imu/data \(sensor_msgs/msg/Imu\)")
+
+
+def test_error_joint_names_name_the_missing_ones(tmp_path):
+    bag = tmp_path / "names"
+    _write_generic(bag, "mcap", _truth(6), rename={"RR_calf_joint": "rr_knee"})
+    _raises(bag, _topics(tmp_path), r"robot joint\(s\) RR_calf_joint not in the message .*rr_knee.*joint_map")
+    log = convert_bag(bag, _topics(tmp_path, lambda r: r["joint_states"]["joint_map"].update(rr_knee="RR_calf_joint")), "go2")
+    np.testing.assert_allclose(log["q"], _truth(6)["q"], atol=1e-12)
+
+
+def test_error_image_encoding(tmp_path):
+    bag = tmp_path / "rgb"
+    _write_generic(bag, "mcap", _truth(7), encoding="rgb8")
+    _raises(bag, _topics(tmp_path), r"image encoding 'rgb8' is not read \(depth must be 16UC1 millimetres or 32FC1")
+
+
+def test_error_no_imu_and_malformed_topics_files(tmp_path, generic_bag):
+    _raises(generic_bag, _topics(tmp_path, lambda r: r.pop("imu")), r"imu: missing")
+    _raises(generic_bag, _topics(tmp_path, lambda r: r["imu"].update(gyr="x")), r"imu\.gyr: unknown key")
+    _raises(generic_bag, _topics(tmp_path, lambda r: r.update(imus={})), r"unknown key 'imus'")
+    _raises(generic_bag, _topics(tmp_path, lambda r: r.update(clock="camera")), r"clock: 'camera' is not one of")
+    _raises(generic_bag, _topics(tmp_path, lambda r: r["imu"].update(gyro="angular_velocity.w")), r"field 'w' of")
+    _raises(generic_bag, _topics(tmp_path, lambda r: r["imu"].update(type="sensor_msgs/msg/Temperature")),
+            r"carries sensor_msgs/msg/Imu, the topics file says")  # fmt: skip
+    _raises(generic_bag, _topics(tmp_path, lambda r: r["T_base_camera"].update(base_frame="trunk")),
+            r"no transform chain from 'trunk' to 'camera_optical'")  # fmt: skip
+    (tmp_path / "bad.yaml").write_text("imu: [1, 2\n")
+    _raises(generic_bag, tmp_path / "bad.yaml", r"not valid YAML")
+    with pytest.raises(ValueError, match="not a bag"):
+        convert_bag(tmp_path / "bad.yaml", _topics(tmp_path), "go2")
