@@ -12,10 +12,9 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
-from jaxquad.io import load_log
-from jaxquad.ros import convert_bag
-from jaxquad.ros.messages import Messages, bag_writer, seconds_to_ns
 from jaxquad.robots import load
+from jaxquad.ros import convert_bag
+from jaxquad.ros.messages import Messages, bag_writer
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "jaxquad" / "ros" / "examples"
 JOINTS = load("go2").joint_names
@@ -145,7 +144,9 @@ def test_generic_bag_converts_to_the_same_arrays(tmp_path, fmt):
 
 def _write_lowstate(path: Path, fmt: str, d: dict, types: dict) -> None:
     """The vendor LowState stream (no header: stamped by receive time), motors in FR FL RR RL order."""
-    motor_order = [JOINTS.index(f"{leg}_{j}_joint") for leg in ("FR", "FL", "RR", "RL") for j in ("hip", "thigh", "calf")]
+    motor_order = [
+        JOINTS.index(f"{leg}_{j}_joint") for leg in ("FR", "FL", "RR", "RL") for j in ("hip", "thigh", "calf")
+    ]
     with bag_writer(path, fmt, types) as w:
         ty = w.msgs.types
         for i, t in enumerate(d["t"]):
@@ -188,7 +189,7 @@ def test_vendor_lowstate_converts_in_robot_order(tmp_path, fmt):
         with pytest.raises(ValueError, match="example_quad/msg/LowState.*unknown.*'types'"):
             convert_bag(bag, no_types, "go2")
     log = convert_bag(bag, _topics(tmp_path, _lowstate_topics, "go2_lowstate.yaml"), "go2")
-    f32 = lambda a: a.astype(np.float32).astype(np.float64)  # noqa: E731
+    f32 = lambda a: a.astype(np.float32).astype(np.float64)
     for key in ("q", "qd", "tau", "gyro", "acc"):
         np.testing.assert_array_equal(log[key], f32(d[key]), err_msg=key)
     q32 = f32(d["quat_wxyz"])
@@ -267,14 +268,18 @@ def _raises(bag, topics, match):
 
 def test_error_unknown_topic_lists_the_bags_topics(tmp_path, generic_bag):
     topics = _topics(tmp_path, lambda r: r["imu"].update(topic="/imu/raw"))
-    _raises(generic_bag, topics, r"topic '/imu/raw' \(imu\) not found; the bag has: .*/imu/data \(sensor_msgs/msg/Imu\)")
+    _raises(
+        generic_bag, topics, r"topic '/imu/raw' \(imu\) not found; the bag has: .*/imu/data \(sensor_msgs/msg/Imu\)"
+    )
 
 
 def test_error_joint_names_name_the_missing_ones(tmp_path):
     bag = tmp_path / "names"
     _write_generic(bag, "mcap", _truth(6), rename={"RR_calf_joint": "rr_knee"})
     _raises(bag, _topics(tmp_path), r"robot joint\(s\) RR_calf_joint not in the message .*rr_knee.*joint_map")
-    log = convert_bag(bag, _topics(tmp_path, lambda r: r["joint_states"]["joint_map"].update(rr_knee="RR_calf_joint")), "go2")
+    log = convert_bag(
+        bag, _topics(tmp_path, lambda r: r["joint_states"]["joint_map"].update(rr_knee="RR_calf_joint")), "go2"
+    )
     np.testing.assert_allclose(log["q"], _truth(6)["q"], atol=1e-12)
 
 
@@ -294,7 +299,163 @@ def test_error_no_imu_and_malformed_topics_files(tmp_path, generic_bag):
             r"carries sensor_msgs/msg/Imu, the topics file says")  # fmt: skip
     _raises(generic_bag, _topics(tmp_path, lambda r: r["T_base_camera"].update(base_frame="trunk")),
             r"no transform chain from 'trunk' to 'camera_optical'")  # fmt: skip
+    (tmp_path / "msg" / "a" / "msg").mkdir(parents=True)
+    (tmp_path / "msg" / "a" / "msg" / "B.msg").write_text("float32 [ x y\n")
+    _raises(generic_bag, _topics(tmp_path, lambda r: r.update(types=["msg/a/msg/B.msg"])), r"a/msg/B: cannot be parsed")
+    (tmp_path / "B.msg").write_text("float32 x\n")
+    _raises(
+        generic_bag, _topics(tmp_path, lambda r: r.update(types=["B.msg"])), r"must be named <package>/msg/<Name>.msg"
+    )
     (tmp_path / "bad.yaml").write_text("imu: [1, 2\n")
     _raises(generic_bag, tmp_path / "bad.yaml", r"not valid YAML")
     with pytest.raises(ValueError, match="not a bag"):
         convert_bag(tmp_path / "bad.yaml", _topics(tmp_path), "go2")
+
+
+def _npz_log(d: dict) -> dict:
+    """The .npz log equivalent to what `_write_generic` records."""
+    from jaxquad.io import save_log  # noqa: F401  (the same validation applies)
+
+    t = (d["t"] - T0_NS) * 1e-9
+    return {"t": t, "robot": np.asarray("go2"), "joint_names": np.asarray(JOINTS),
+            **{k: d[k] for k in ("q", "qd", "tau", "gyro", "acc", "quat_wxyz", "gt_pose")},
+            "foot_force": d["foot_force"].astype(np.float32).astype(np.float64),
+            "contact": (d["foot_force"].astype(np.float32) > 30.0).astype(float),
+            "depth": d["depth_mm"] / 1000.0, "depth_t": (d["depth_t"] - T0_NS) * 1e-9, "K": d["K"],
+            "T_base_camera": _tf_matrix()}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def estimated(tmp_path_factory):
+    """`jaxquad estimate` on a converted bag and on the equivalent .npz (one MJX compile for both)."""
+    from jaxquad.cli import main
+    from jaxquad.io import save_log
+
+    root = tmp_path_factory.mktemp("est")
+    d = _truth(8)
+    d["gyro"] *= 0.2
+    _write_generic(root / "rec", "mcap", d)
+    topics = _topics(root)
+    assert (
+        main(["convert", str(root / "rec"), "--topics", str(topics), "--robot", "go2", "--out", str(root / "bag.npz")])
+        == 0
+    )
+    save_log(root / "ref.npz", _npz_log(d))
+    for name in ("bag", "ref"):
+        assert (
+            main(["estimate", str(root / f"{name}.npz"), "--out", str(root / f"est_{name}"), "--band-height", "3"]) == 0
+        )
+    return root
+
+
+@pytest.mark.slow  # compiles the MJX estimator (about a minute on an idle 2-core CPU)
+def test_estimate_on_converted_bag_equals_estimate_on_npz(estimated):
+    a, b = (np.load(estimated / f"est_{n}" / "robot.npz") for n in ("bag", "ref"))
+    assert set(a.files) == set(b.files)
+    for key in a.files:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+    a, b = (np.load(estimated / f"est_{n}" / "robot_scans.npz") for n in ("bag", "ref"))
+    for key in b.files:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+    assert (estimated / "est_bag" / "robot.tum").read_text() == (estimated / "est_ref" / "robot.tum").read_text()
+
+
+def _read_bag(path: Path) -> dict[str, list]:
+    from rosbags.highlevel import AnyReader
+
+    out: dict[str, list] = {}
+    with AnyReader([path]) as reader:
+        for conn, t_ns, raw in reader.messages():
+            out.setdefault(conn.topic, []).append((t_ns, reader.deserialize(raw, conn.msgtype)))
+    return out
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory) -> Path:
+    """A results folder as `jaxquad estimate` writes it, plus a ground-truth TUM and a map."""
+    from jaxquad.io import OccupancyMap, TumTrajectory, save_map, write_tum
+
+    folder = tmp_path_factory.mktemp("res")
+    rng = np.random.default_rng(10)
+    t = 0.5 + 0.004 * np.arange(50)
+    for name in ("robot", "gt_0000"):
+        q = Rotation.random(50, random_state=11).as_quat()
+        write_tum(folder / f"{name}.tum", TumTrajectory(t, rng.normal(size=(50, 3)), q))
+    np.savez(folder / "robot.npz", t=t, v_base=rng.normal(size=(50, 3)).astype(np.float32),
+             omega_base=rng.normal(size=(50, 3)).astype(np.float32))  # fmt: skip
+    ranges = rng.uniform(0.3, 6.0, (2, 4, W))
+    ranges[:, 1, :5] = np.inf
+    bearings = np.arctan2(-(np.arange(W) - 7.3), 9.0)
+    np.savez(folder / "robot_scans.npz", depth_t=t[[3, 15, 30, 44]], ranges_stabilized=ranges[0], ranges_baseline=ranges[1],
+             bearings=bearings, roll=rng.normal(0, 0.1, 4), pitch=rng.normal(0, 0.1, 4))  # fmt: skip
+    grid = rng.choice(np.array([-1, 0, 100], np.int8), (5, 7))
+    save_map(folder / "map.yaml", OccupancyMap(grid, 0.05, (-1.0, 2.0, 0.0)))
+    return folder
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "sqlite3", "ros1"])
+def test_export_reads_back_to_the_same_numbers(results, tmp_path, fmt):
+    from jaxquad.cli import main
+    from jaxquad.io import load_map, read_tum
+
+    out = tmp_path / ("out.bag" if fmt == "ros1" else "out")
+    assert main(["export", str(results), "--bag", str(out), "--format", fmt]) == 0
+    assert [p.name for p in tmp_path.iterdir()] == [out.name]  # no temporary left
+    bag = _read_bag(out)
+    est = np.load(results / "robot.npz")
+    for name in ("robot", "gt_0000"):
+        traj = read_tum(results / f"{name}.tum")
+        odom = bag[f"/{name}/odom"]
+        assert [t for t, _ in odom] == list(np.round(traj.t_s * 1e9).astype(np.int64))
+        pose = [m.pose.pose for _, m in odom]
+        np.testing.assert_array_equal([[p.position.x, p.position.y, p.position.z] for p in pose], traj.p_world_body)
+        np.testing.assert_array_equal([[p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w] for p in pose],
+                                      traj.q_world_body_xyzw)  # fmt: skip
+        v = np.array([[m.twist.twist.linear.x, m.twist.twist.linear.y, m.twist.twist.linear.z] for _, m in odom])
+        np.testing.assert_array_equal(v, est["v_base"].astype(np.float64) if name == "robot" else 0 * v)
+        assert {m.header.frame_id for _, m in odom} == {"odom"} and odom[0][1].child_frame_id == f"{name}/base_link"
+        ((_, path),) = bag[f"/{name}/path"]
+        np.testing.assert_array_equal(
+            [[s.pose.position.x, s.pose.position.y] for s in path.poses], traj.p_world_body[:, :2]
+        )
+        tfs = [tf for _, m in bag["/tf"] for tf in m.transforms if tf.child_frame_id == f"{name}/base_link"]
+        np.testing.assert_array_equal([tf.transform.translation.z for tf in tfs], traj.p_world_body[:, 2])
+    scans = np.load(results / "robot_scans.npz")
+    b = scans["bearings"]
+    for key in ("stabilized", "baseline"):
+        msgs = bag[f"/robot/scan_{key}"]
+        assert [t for t, _ in msgs] == list(np.round(scans["depth_t"] * 1e9).astype(np.int64))
+        for _, m in msgs:
+            angles = m.angle_min + m.angle_increment * np.arange(len(m.ranges))
+            assert abs(angles[-1] - b.max()) < 1e-5 and abs(m.angle_min - b.min()) < 1e-6
+            assert m.header.frame_id == ("robot/base_level" if key == "stabilized" else "robot/base_link")
+        # each beam: the range of the column whose bearing is nearest the beam's angle
+        beams = np.linspace(b.min(), b.max(), b.size)
+        want = [[scans[f"ranges_{key}"][i, np.argmin(np.abs(b - a))] for a in beams] for i in range(len(msgs))]
+        np.testing.assert_array_equal([m.ranges for _, m in msgs], np.float32(want))
+    level = [
+        tf.transform.rotation for _, m in bag["/tf"] for tf in m.transforms if tf.child_frame_id == "robot/base_level"
+    ]
+    for r, roll, pitch in zip(level, scans["roll"], scans["pitch"]):  # base attitude then base->level: level
+        R = Rotation.from_euler("ZYX", [0.0, pitch, roll]) * Rotation.from_quat([r.x, r.y, r.z, r.w])
+        np.testing.assert_allclose(R.as_matrix(), np.eye(3), atol=1e-12)
+    ((_, occ),) = bag["/map"]
+    grid = load_map(results / "map.yaml").grid
+    assert (occ.info.width, occ.info.height, occ.info.resolution) == (7, 5, np.float32(0.05))
+    assert (occ.info.origin.position.x, occ.info.origin.position.y) == (-1.0, 2.0)
+    np.testing.assert_array_equal(np.asarray(occ.data).reshape(5, 7), grid)  # row 0 = bottom, as the map
+
+
+def test_export_errors_and_failed_export_leaves_nothing(tmp_path):
+    from jaxquad.ros.export import export
+
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="nothing to export"):
+        export(tmp_path / "empty", tmp_path / "out")
+    with pytest.raises(ValueError, match="a ROS 1 bag is a .bag file"):
+        export(tmp_path / "empty", tmp_path / "out", "ros1")
+    (tmp_path / "bad").mkdir()
+    (tmp_path / "bad" / "a.tum").write_text("0 0 0 0 0 0 0 1\n1 nan 0 0 0 0 0 1\n")
+    with pytest.raises(ValueError, match="a.tum:2"):
+        export(tmp_path / "bad", tmp_path / "out")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad", "empty"]

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import struct
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -21,12 +22,15 @@ def bag_kind(path: str | os.PathLike) -> str:
         return "ros1"
     if (path.is_dir() and (path / "metadata.yaml").is_file()) or (path.is_file() and path.suffix in (".mcap", ".db3")):
         return "ros2"
-    raise ValueError(f"{path}: not a bag (expected a ROS 1 .bag file, or a ROS 2 folder with metadata.yaml, .mcap or .db3)")
+    raise ValueError(
+        f"{path}: not a bag (expected a ROS 1 .bag file, or a ROS 2 folder with metadata.yaml, .mcap or .db3)"
+    )
 
 
 def typestore(kind: str, types: dict[str, str] | None = None):
     """The standard message types of ROS 1 Noetic or the latest ROS 2 LTS, plus `types` (name -> .msg text)."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    from rosbags.typesys.base import TypesysError
 
     store = get_typestore(Stores.ROS1_NOETIC if kind == "ros1" else Stores.LATEST)
     defs = {}
@@ -36,7 +40,7 @@ def typestore(kind: str, types: dict[str, str] | None = None):
     for name, text in (types or {}).items():
         try:
             defs.update(get_types_from_msg(text, name))
-        except Exception as e:  # rosbags raises its own parser errors
+        except TypesysError as e:
             raise ValueError(f"message definition {name}: cannot be parsed ({str(e).splitlines()[0]})") from None
     if defs:
         store.register(defs)
@@ -83,9 +87,13 @@ def topic_connections(reader, path, topic: str, role: str, want_type: str | None
 
 def messages(reader, path, conns) -> Iterator[tuple[object, int, object]]:
     """(connection, receive time ns, decoded message) over `conns`, in bag order."""
+    from rosbags.highlevel import AnyReaderError
+
     for conn, t_ns, raw in reader.messages(connections=conns):
         try:
             msg = reader.deserialize(raw, conn.msgtype)
-        except Exception as e:  # a wrong definition surfaces as any decode error
-            raise ValueError(f"bag {path}: a {conn.msgtype} message on {conn.topic!r} cannot be decoded ({e})") from None
+        except (AnyReaderError, ValueError, IndexError, struct.error, UnicodeDecodeError) as e:  # a wrong .msg
+            raise ValueError(
+                f"bag {path}: a {conn.msgtype} message on {conn.topic!r} cannot be decoded ({e})"
+            ) from None
         yield conn, t_ns, msg

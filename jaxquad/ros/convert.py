@@ -149,7 +149,7 @@ def convert_bag(bag: str | os.PathLike, topics_path: str | os.PathLike, robot: s
     if clock.size < 2:
         raise ValueError(f"bag {bag}: the IMU and joint states do not overlap in time")
     origin = int(clock[0])
-    sec = lambda ns: (ns - origin) * 1e-9  # noqa: E731  (relative first: float64 keeps the nanoseconds)
+    sec = lambda ns: (ns - origin) * 1e-9
     t, imu_t, js_t = sec(clock), sec(imu_t), sec(js_t)
     method, tol = topics.interpolation, topics.tolerance_s
     log: dict[str, np.ndarray] = {"t": t, "t_origin_s": np.float64(origin * 1e-9), "robot": np.asarray(robot),

@@ -87,11 +87,27 @@ def _trajectory_messages(m, name, traj, extra, frame):
     poses = []
     for i, t in enumerate(ns):
         v, w = (extra["v_base"][i], extra["omega_base"][i]) if twist else (np.zeros(3), np.zeros(3))
-        out.append((t, f"/{name}/odom", "nav_msgs/msg/Odometry", _odometry(m, t, name, frame, traj.p_world_body[i], q[i], v, w)))
+        out.append(
+            (
+                t,
+                f"/{name}/odom",
+                "nav_msgs/msg/Odometry",
+                _odometry(m, t, name, frame, traj.p_world_body[i], q[i], v, w),
+            )
+        )
         tf = m.transform(t, frame, f"{name}/base_link", traj.p_world_body[i], q[i])
         out.append((t, "/tf", "tf2_msgs/msg/TFMessage", ty["tf2_msgs/msg/TFMessage"](transforms=[tf])))
-        poses.append(ty["geometry_msgs/msg/PoseStamped"](header=m.header(t, frame), pose=m.pose(traj.p_world_body[i], q[i])))
-    out.append((ns[0], f"/{name}/path", "nav_msgs/msg/Path", ty["nav_msgs/msg/Path"](header=m.header(ns[0], frame), poses=poses)))
+        poses.append(
+            ty["geometry_msgs/msg/PoseStamped"](header=m.header(t, frame), pose=m.pose(traj.p_world_body[i], q[i]))
+        )
+    out.append(
+        (
+            ns[0],
+            f"/{name}/path",
+            "nav_msgs/msg/Path",
+            ty["nav_msgs/msg/Path"](header=m.header(ns[0], frame), poses=poses),
+        )
+    )
     return out
 
 
@@ -154,4 +170,3 @@ def export(folder: str | os.PathLike, out: str | os.PathLike, fmt: str = "mcap",
             w.write(topic, msgtype, t_ns, msg)
             counts[topic] = counts.get(topic, 0) + 1
     return {"bag": str(out), "format": fmt, "frame": frame, "topics": dict(sorted(counts.items()))}
-

@@ -24,7 +24,10 @@ def _vector(topics: Topics, role: str, msg, msgtype: str, key: str, n: int, requ
 
 
 def imu(topics: Topics, msg, msgtype: str) -> dict:
-    out = {"gyro": _vector(topics, "imu", msg, msgtype, "gyro", 3), "acc": _vector(topics, "imu", msg, msgtype, "acc", 3)}
+    out = {
+        "gyro": _vector(topics, "imu", msg, msgtype, "gyro", 3),
+        "acc": _vector(topics, "imu", msg, msgtype, "acc", 3),
+    }
     path = topics.field("imu", "quat_wxyz", msgtype, required=False)
     if path is not None:
         q = get_array(msg, path, f"imu.quat_wxyz ({topics.roles['imu']['topic']})").ravel()[:4]
@@ -118,7 +121,7 @@ def depth_image(msg, topic: str) -> np.ndarray:
 def intrinsics(msg) -> tuple[np.ndarray, tuple[int, int]]:
     """K (3, 3) and (height, width) of a CameraInfo (ROS 1 names it `K`, ROS 2 `k`)."""
     k = getattr(msg, "k", None)
-    k = getattr(msg, "K") if k is None else k
+    k = msg.K if k is None else k
     return np.asarray(k, np.float64).reshape(3, 3), (int(msg.height), int(msg.width))
 
 

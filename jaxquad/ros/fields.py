@@ -32,7 +32,9 @@ def get_field(msg, path: str, where: str):
             values = [getattr(v, name) for v in values]
         except AttributeError:
             fields = [f for f in getattr(type(values[0]), "__dataclass_fields__", {}) if not f.startswith("_")]
-            raise ValueError(f"{where}: field {name!r} of {path!r} not in the message (fields: {', '.join(fields)})") from None
+            raise ValueError(
+                f"{where}: field {name!r} of {path!r} not in the message (fields: {', '.join(fields)})"
+            ) from None
         if index == "*":
             values, mapped = [x for v in values for x in v], True
         elif index is not None:

@@ -23,7 +23,9 @@ class Messages:
         self._seq = "seq" in dict(self.store.fielddefs["std_msgs/msg/Header"][1])
 
     def time(self, t_ns: int):
-        return self.types["builtin_interfaces/msg/Time"](sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000))
+        return self.types["builtin_interfaces/msg/Time"](
+            sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000)
+        )
 
     def header(self, t_ns: int, frame: str):
         extra = {"seq": 0} if self._seq else {}
@@ -37,7 +39,9 @@ class Messages:
         return self.types["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w)
 
     def pose(self, p, q_wxyz):
-        return self.types["geometry_msgs/msg/Pose"](position=self.vector3(p, "Point"), orientation=self.quaternion(q_wxyz))
+        return self.types["geometry_msgs/msg/Pose"](
+            position=self.vector3(p, "Point"), orientation=self.quaternion(q_wxyz)
+        )
 
     def transform(self, t_ns: int, parent: str, child: str, p, q_wxyz):
         tf = self.types["geometry_msgs/msg/Transform"](translation=self.vector3(p), rotation=self.quaternion(q_wxyz))

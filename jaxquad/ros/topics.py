@@ -99,7 +99,9 @@ def load_topics(path: str | os.PathLike) -> Topics:
         raise ValueError(f"topics file {path}: expected a mapping of roles to topics")
     unknown = sorted(set(raw) - set(_TOP_KEYS) - set(ROLE_KEYS))
     if unknown:
-        raise ValueError(f"topics file {path}: unknown key {unknown[0]!r} (known: {', '.join(_TOP_KEYS + tuple(ROLE_KEYS))})")
+        raise ValueError(
+            f"topics file {path}: unknown key {unknown[0]!r} (known: {', '.join(_TOP_KEYS + tuple(ROLE_KEYS))})"
+        )
     where = f"topics file {path}"
     for role in ("imu", "joint_states"):
         if role not in raw:
