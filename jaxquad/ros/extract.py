@@ -7,7 +7,7 @@ import numpy as np
 from jaxquad.ros.fields import get_array, get_field
 from jaxquad.ros.topics import Topics
 
-_DEPTH_ENCODINGS = {"16UC1": ("u2", 1e-3), "32FC1": ("f4", 1.0)}  # dtype, metres per unit
+_DEPTH_ENCODINGS = {"16UC1": ("u2", 1000.0), "32FC1": ("f4", 1.0)}  # dtype, units per metre
 
 
 def _vector(topics: Topics, role: str, msg, msgtype: str, key: str, n: int, required: bool = True):
@@ -106,14 +106,14 @@ def depth_image(msg, topic: str) -> np.ndarray:
     if enc not in _DEPTH_ENCODINGS:
         raise ValueError(f"depth ({topic}): image encoding {enc!r} is not read (depth must be 16UC1 millimetres "
                          f"or 32FC1 metres)")  # fmt: skip
-    kind, scale = _DEPTH_ENCODINGS[enc]
+    kind, per_metre = _DEPTH_ENCODINGS[enc]
     dtype = np.dtype(kind).newbyteorder(">" if msg.is_bigendian else "<")
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
     data = np.asarray(msg.data, np.uint8)
     if data.size < h * step or step < w * dtype.itemsize:
         raise ValueError(f"depth ({topic}): image data of {data.size} bytes does not fit {h}x{w} {enc} (step {step})")
     rows = data[: h * step].reshape(h, step)[:, : w * dtype.itemsize]
-    img = np.ascontiguousarray(rows).view(dtype).reshape(h, w).astype(np.float32) * np.float32(scale)
+    img = (np.ascontiguousarray(rows).view(dtype).reshape(h, w) / per_metre).astype(np.float32)  # rounded once
     img[~np.isfinite(img) | (img < 0)] = 0.0
     return img
 
