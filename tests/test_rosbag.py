@@ -12,6 +12,7 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
+from jaxquad.io import load_log
 from jaxquad.robots import load
 from jaxquad.ros import convert_bag
 from jaxquad.ros.messages import Messages, bag_writer
@@ -306,6 +307,7 @@ def test_error_no_imu_and_malformed_topics_files(tmp_path, generic_bag):
     _raises(
         generic_bag, _topics(tmp_path, lambda r: r.update(types=["B.msg"])), r"must be named <package>/msg/<Name>.msg"
     )
+    _raises(generic_bag, _topics(tmp_path, lambda r: r.pop("T_base_camera")), r"T_base_camera: missing")
     (tmp_path / "bad.yaml").write_text("imu: [1, 2\n")
     _raises(generic_bag, tmp_path / "bad.yaml", r"not valid YAML")
     with pytest.raises(ValueError, match="not a bag"):
@@ -459,3 +461,23 @@ def test_export_errors_and_failed_export_leaves_nothing(tmp_path):
     with pytest.raises(ValueError, match="a.tum:2"):
         export(tmp_path / "bad", tmp_path / "out")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad", "empty"]
+
+
+def test_cli_convert_writes_the_log_and_errors_in_one_line(tmp_path, generic_bag, capsys):
+    from jaxquad.cli import main
+
+    topics, out = _topics(tmp_path), tmp_path / "log.npz"
+    assert main(["convert", str(generic_bag), "--topics", str(topics), "--robot", "go2", "--out", str(out)]) == 0
+    log, want = load_log(out), convert_bag(generic_bag, topics, "go2")
+    assert set(log) == set(want)
+    for key in want:
+        np.testing.assert_array_equal(log[key], want[key], err_msg=key)
+    capsys.readouterr()
+    bad = _topics(tmp_path, lambda r: r["joint_states"].update(topic="/joints"))
+    assert (
+        main(["convert", str(generic_bag), "--topics", str(bad), "--robot", "go2", "--out", str(tmp_path / "x.npz")])
+        == 1
+    )
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "topic '/joints' (joint_states) not found" in err
+    assert not (tmp_path / "x.npz").exists()

@@ -103,8 +103,8 @@ def read_bag(bag: str | os.PathLike, topics: Topics, joint_names, n_feet: int) -
                     info["transforms"].update(_transform(tf) for tf in msg.transforms)
                 elif role == "ground_truth":
                     streams[role].add(t_ns, {"gt_pose": extract.pose(topics, msg, mt)})
-    for role in ("imu", "joint_states", "depth", "camera_info", "ground_truth", "foot_force", "contact"):
-        if role in topics.roles and role != "camera_info" and not streams[role].t:
+    for role in ("imu", "joint_states", "depth", "ground_truth", "foot_force", "contact"):
+        if role in topics.roles and not streams[role].t:
             raise ValueError(f"bag {bag}: no {role} messages on {topics.roles[role]['topic']!r}")
     if "depth" in topics.roles and "K" not in info:
         raise ValueError(f"bag {bag}: no camera_info messages on {topics.roles['camera_info']['topic']!r}")
@@ -121,9 +121,7 @@ def _depth(read: dict, topics: Topics, t: np.ndarray, sec, bag) -> dict:
     if len(shapes) != 1 or shapes.pop() != read["image_size"]:
         raise ValueError(f"bag {bag}: depth images ({sorted({i.shape for i in v['depth']})}) do not all match "
                          f"the camera_info size {read['image_size']}")  # fmt: skip
-    entry = topics.roles.get("T_base_camera")
-    if entry is None:
-        topics.fail("T_base_camera", "missing (depth images need the camera pose on the base)")
+    entry = topics.roles["T_base_camera"]
     if "matrix" in entry:
         T = np.asarray(entry["matrix"], np.float64)
         if T.shape != (4, 4):

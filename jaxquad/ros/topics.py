@@ -128,8 +128,9 @@ def load_topics(path: str | os.PathLike) -> Topics:
         if "joint_map" in entry and not isinstance(entry["joint_map"], dict):
             raise ValueError(f"{where}: {role}.joint_map: expected a mapping message name -> robot joint name")
         roles[role] = entry
-    if "depth" in roles and "camera_info" not in roles:
-        raise ValueError(f"{where}: camera_info: missing (depth images need their intrinsics)")
+    for key, why in (("camera_info", "their intrinsics"), ("T_base_camera", "the camera pose on the base")):
+        if "depth" in roles and key not in roles:
+            raise ValueError(f"{where}: {key}: missing (depth images need {why})")
     settings = {}
     for key, choices in _CHOICES.items():
         value = raw.get(key, choices[0])
