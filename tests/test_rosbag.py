@@ -141,6 +141,10 @@ def test_generic_bag_converts_to_the_same_arrays(tmp_path, fmt):
     np.testing.assert_allclose(log["depth_t"], (d["depth_t"] - T0_NS) * 1e-9, atol=1e-12)
     np.testing.assert_allclose(log["K"], d["K"])
     np.testing.assert_allclose(log["T_base_camera"], _tf_matrix(), atol=1e-12)
+    if fmt != "ros1":  # the bare storage file reads the same as its folder
+        bare = convert_bag(next(bag.glob("*.mcap" if fmt == "mcap" else "*.db3")), _topics(tmp_path), "go2")
+        for key in log:
+            np.testing.assert_array_equal(bare[key], log[key], err_msg=key)
 
 
 def _write_lowstate(path: Path, fmt: str, d: dict, types: dict) -> None:
@@ -316,8 +320,6 @@ def test_error_no_imu_and_malformed_topics_files(tmp_path, generic_bag):
 
 def _npz_log(d: dict) -> dict:
     """The .npz log equivalent to what `_write_generic` records."""
-    from jaxquad.io import save_log  # noqa: F401  (the same validation applies)
-
     t = (d["t"] - T0_NS) * 1e-9
     return {"t": t, "robot": np.asarray("go2"), "joint_names": np.asarray(JOINTS),
             **{k: d[k] for k in ("q", "qd", "tau", "gyro", "acc", "quat_wxyz", "gt_pose")},
@@ -360,6 +362,10 @@ def test_estimate_on_converted_bag_equals_estimate_on_npz(estimated):
     for key in b.files:
         np.testing.assert_array_equal(a[key], b[key], err_msg=key)
     assert (estimated / "est_bag" / "robot.tum").read_text() == (estimated / "est_ref" / "robot.tum").read_text()
+    from jaxquad.ros.export import export
+
+    counts = export(estimated / "est_bag", estimated / "est_bag_mcap")["topics"]  # a real estimate folder
+    assert counts["/robot/odom"] == N and counts["/robot/scan_stabilized"] == counts["/robot/scan_baseline"] == 4
 
 
 def _read_bag(path: Path) -> dict[str, list]:

@@ -54,7 +54,10 @@ def find_results(folder: str | os.PathLike) -> dict:
     for scans in sorted(folder.glob("*_scans.npz")):
         found["scans"][_topic_name(scans.name[: -len("_scans.npz")])] = dict(np.load(scans))
     for path in sorted(folder.glob("*.yaml")):
-        meta = yaml.safe_load(path.read_text())
+        try:
+            meta = yaml.safe_load(path.read_text())
+        except yaml.YAMLError:
+            continue  # not a map (maps are read strictly below)
         if isinstance(meta, dict) and {"image", "resolution", "origin"} <= set(meta):
             found["maps"][_topic_name(path.stem)] = load_map(path)
     if not any(found.values()):
