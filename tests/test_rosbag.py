@@ -163,10 +163,13 @@ def _write_lowstate(path: Path, fmt: str, d: dict, types: dict) -> None:
             feet = np.round(d["foot_force"][i][[1, 0, 3, 2]]).astype(np.int16)  # FR FL RR RL
             msg = ty["example_quad/msg/LowState"](imu_state=imu, motor_state=motors, foot_force=feet, tick=i)
             w.write("/lowstate", "example_quad/msg/LowState", t, msg)
+            mocap = ty["geometry_msgs/msg/PoseStamped"](header=w.msgs.header(t, "world"),
+                                                        pose=w.msgs.pose(d["gt_pose"][i, :3], d["gt_pose"][i, 3:]))  # fmt: skip
+            w.write("/mocap/pose", "geometry_msgs/msg/PoseStamped", t, mocap)
 
 
 def _lowstate_topics(raw: dict) -> None:
-    for role in ("depth", "camera_info", "T_base_camera", "ground_truth"):
+    for role in ("depth", "camera_info", "T_base_camera"):
         raw.pop(role)
 
 
@@ -200,6 +203,7 @@ def test_vendor_lowstate_converts_in_robot_order(tmp_path, fmt):
     q32 = f32(d["quat_wxyz"])
     np.testing.assert_allclose(log["quat_wxyz"], q32 / np.linalg.norm(q32, axis=1, keepdims=True), atol=1e-12)
     np.testing.assert_array_equal(log["foot_force"], np.round(d["foot_force"]))
+    np.testing.assert_allclose(log["gt_pose"], d["gt_pose"], atol=1e-12)  # PoseStamped motion capture
     np.testing.assert_allclose(log["t"], (d["t"] - T0_NS) * 1e-9, atol=1e-12)
 
 
