@@ -13,6 +13,8 @@ _COMMANDS: dict[str, tuple[str, str]] = {
     "eval": ("jaxquad.metrics.cli", "ATE/ARE/APE/RPE of an estimated TUM trajectory against a reference, as evo"),
     "estimate": ("jaxquad.estimate.cli", "contacts and leg-inertial odometry over a robot log (TUM, npz, JSON summary)"),
     "tune": ("jaxquad.estimate.tune.cli", "tune the contact observer's gains and thresholds on a fleet log (grid search or gradient)"),
+    "convert": ("jaxquad.ros.convert_cli", "a robot log (.npz) from a ROS 1 or ROS 2 bag and a topics file"),
+    "export": ("jaxquad.ros.export_cli", "estimation, odometry, SLAM results (TUM, scans, maps) as a ROS bag for RViz/Foxglove"),
     "simulate": ("jaxquad.sim.cli", "run an MJX fleet of robots in generated worlds; write the fleet log, ground-truth TUM and maps"),
 }
 

@@ -15,7 +15,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
 
-__all__ = ["atomic_dir", "atomic_open", "atomic_write_bytes", "atomic_write_text", "check_output_dir", "check_output_file"]
+__all__ = ["atomic_dir", "atomic_open", "atomic_path", "atomic_write_bytes", "atomic_write_text", "check_output_dir", "check_output_file"]
 
 
 def _umask_mode(base: int) -> int:
@@ -122,3 +122,26 @@ def check_output_dir(out: str | os.PathLike, what: str = "--out", kind: str | No
     # atomic_dir builds beside `out`, so its parent must be writable too.
     _probe_dir(out.resolve().parent, f"{what} {out}")
     return out
+
+
+@contextlib.contextmanager
+def atomic_path(out: str | os.PathLike) -> Iterator[Path]:
+    """Yield a path that does not exist yet and has `out`'s name (for writers that create their own file
+    or folder and record its name inside, as ROS 2 bags do); on a clean exit it replaces `out`."""
+    out = Path(out).resolve()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.tmp."))
+    try:
+        yield tmp / out.name
+        made = tmp / out.name
+        if made.is_dir():
+            os.chmod(made, _umask_mode(0o777))
+        old = None
+        if out.exists():
+            old = out.with_name(f".{out.name}.old.{os.getpid()}")
+            os.replace(out, old)
+        os.replace(made, out)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True) if old.is_dir() else old.unlink()
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
