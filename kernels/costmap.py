@@ -24,15 +24,28 @@ _NO_OBSTACLE = 1e6
 class CostmapParams(eqx.Module):
     """Inflation numbers (traced leaves, m unless named otherwise)."""
 
-    inscribed_radius: Float[Array, ""]  # half the robot's width: cells closer than this are 253
-    inflation_radius: Float[Array, ""]  # cost falls to 0 beyond this distance from an obstacle
-    cost_scaling_factor: Float[Array, ""]  # 1/m, exponential decay rate of the inflation
-    occupied_thresh: Float[Array, ""]  # occupancy (0..100) at and above which a cell is an obstacle
+    inscribed_radius: Float[
+        Array, ""
+    ]  # half the robot's width: cells closer than this are 253
+    inflation_radius: Float[
+        Array, ""
+    ]  # cost falls to 0 beyond this distance from an obstacle
+    cost_scaling_factor: Float[
+        Array, ""
+    ]  # 1/m, exponential decay rate of the inflation
+    occupied_thresh: Float[
+        Array, ""
+    ]  # occupancy (0..100) at and above which a cell is an obstacle
 
     @classmethod
-    def default(cls, **overrides: float) -> "CostmapParams":
+    def default(cls, **overrides: float) -> CostmapParams:
         # 0.7 m inflation (the paper); the authors' public configuration inflates 0.3 m.
-        values = dict(inscribed_radius=0.2, inflation_radius=0.7, cost_scaling_factor=3.0, occupied_thresh=65.0)
+        values = {
+            "inscribed_radius": 0.2,
+            "inflation_radius": 0.7,
+            "cost_scaling_factor": 3.0,
+            "occupied_thresh": 65.0,
+        }
         values.update(overrides)
         return cls(**{k: jnp.asarray(v, jnp.float32) for k, v in values.items()})
 
@@ -65,9 +78,13 @@ def distance_transform(obstacle: Bool[Array, "H W"]) -> Float[Array, "H W"]:
     return jnp.minimum(jnp.sqrt(d2), _NO_OBSTACLE)
 
 
-def inflation_cost(distance: Float[Array, "*S"], params: CostmapParams) -> Float[Array, "*S"]:
+def inflation_cost(
+    distance: Float[Array, "*S"], params: CostmapParams
+) -> Float[Array, "*S"]:
     """Nav2's inflation formula for a distance (m) from the nearest obstacle (0 at the obstacle)."""
-    decay = (INSCRIBED - 1) * jnp.exp(-params.cost_scaling_factor * (distance - params.inscribed_radius))
+    decay = (INSCRIBED - 1) * jnp.exp(
+        -params.cost_scaling_factor * (distance - params.inscribed_radius)
+    )
     cost = jnp.where(distance <= params.inflation_radius, decay, 0.0)
     cost = jnp.where(distance <= params.inscribed_radius, float(INSCRIBED), cost)
     return jnp.where(distance <= 0.0, float(LETHAL), cost)

@@ -6,8 +6,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from scipy import ndimage
-
 from jaxquad.kernels.costmap import (
     INSCRIBED,
     LETHAL,
@@ -16,18 +14,24 @@ from jaxquad.kernels.costmap import (
     costmap_from_occupancy,
     distance_transform,
 )
+from scipy import ndimage
 
 _edt = jax.jit(distance_transform)
 _costmap = jax.jit(costmap_from_occupancy)
 
 
-@pytest.mark.parametrize("seed, shape, density", [(0, (40, 40), 0.02), (1, (57, 83), 0.1), (2, (100, 64), 0.005)])
+@pytest.mark.parametrize(
+    "seed, shape, density",
+    [(0, (40, 40), 0.02), (1, (57, 83), 0.1), (2, (100, 64), 0.005)],
+)
 def test_distance_transform_matches_scipy(seed, shape, density):
     rng = np.random.default_rng(seed)
     obstacle = rng.random(shape) < density
     obstacle[rng.integers(shape[0]), rng.integers(shape[1])] = True
     expected = ndimage.distance_transform_edt(~obstacle)
-    np.testing.assert_allclose(np.asarray(_edt(jnp.asarray(obstacle))), expected, rtol=1e-6, atol=1e-5)
+    np.testing.assert_allclose(
+        np.asarray(_edt(jnp.asarray(obstacle))), expected, rtol=1e-6, atol=1e-5
+    )
 
 
 def test_distance_transform_without_obstacles_is_large():
@@ -53,7 +57,7 @@ def test_costmap_matches_loop_reference():
     grid[10:14, 5:40] = 80
     grid[30:, 45:] = -1
     grid[rng.random(grid.shape) < 0.02] = 30  # below the occupied threshold: free
-    p = dict(inscribed=0.2, inflation=0.7, scale=3.0)
+    p = {"inscribed": 0.2, "inflation": 0.7, "scale": 3.0}
     params = CostmapParams.default()
     cost = np.asarray(_costmap(jnp.asarray(grid), res, params))
     d = ndimage.distance_transform_edt(grid < 65) * res
@@ -68,8 +72,12 @@ def test_costmap_vmaps_over_robots_with_traced_params():
     grid = np.zeros((40, 40), np.int8)
     grid[20, 20] = 100
     params = jax.tree.map(lambda x: jnp.stack([x, x]), CostmapParams.default())
-    params = params.__class__(**{**vars(params), "inflation_radius": jnp.array([0.3, 0.7])})
-    cost = jax.jit(jax.vmap(costmap_from_occupancy, in_axes=(None, None, 0)))(jnp.asarray(grid), 0.05, params)
+    params = params.__class__(
+        **{**vars(params), "inflation_radius": jnp.array([0.3, 0.7])}
+    )
+    cost = jax.jit(jax.vmap(costmap_from_occupancy, in_axes=(None, None, 0)))(
+        jnp.asarray(grid), 0.05, params
+    )
     # 0.5 m from the obstacle: beyond 0.3 m inflation, inside 0.7 m.
     assert float(cost[0, 20, 30]) == 0.0
     assert float(cost[1, 20, 30]) == pytest.approx(252 * math.exp(-3.0 * 0.3), rel=1e-5)

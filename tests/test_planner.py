@@ -6,11 +6,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from scipy import sparse
-from scipy.sparse import csgraph
-
 from jaxquad.kernels.costmap import INSCRIBED, LETHAL, UNKNOWN
 from jaxquad.kernels.planner import cost_to_go, descend, nearest_open_cell, step_weights
+from scipy import sparse
+from scipy.sparse import csgraph
 
 _ctg = jax.jit(cost_to_go)
 _descend = jax.jit(descend, static_argnames=("n_points", "stride"))
@@ -25,14 +24,16 @@ def _reference_graph(weight):
             for dr in (-1, 0, 1):
                 for dc in (-1, 0, 1):
                     rr, cc = r + dr, c + dc
-                    if (dr or dc) and 0 <= rr < h and 0 <= cc < w:
-                        if np.isfinite(weight[r, c]) and np.isfinite(weight[rr, cc]):
-                            src.append(r * w + c), dst.append(rr * w + cc)
-                            cost.append(
-                                math.hypot(dr, dc)
-                                * 0.5
-                                * (weight[r, c] + weight[rr, cc])
-                            )
+                    inside = (dr or dc) and 0 <= rr < h and 0 <= cc < w
+                    if (
+                        inside
+                        and np.isfinite(weight[r, c])
+                        and np.isfinite(weight[rr, cc])
+                    ):
+                        src.append(r * w + c), dst.append(rr * w + cc)
+                        cost.append(
+                            math.hypot(dr, dc) * 0.5 * (weight[r, c] + weight[rr, cc])
+                        )
     return sparse.csr_matrix((cost, (src, dst)), shape=(h * w, h * w))
 
 
