@@ -99,3 +99,33 @@ def costmap_from_occupancy(
     cost = inflation_cost(distance_transform(obstacle) * resolution, params)
     # As Nav2 without inflate_unknown: unknown stays unknown unless inflation makes it (at least) inscribed.
     return jnp.where((grid < 0) & (cost < INSCRIBED), float(UNKNOWN), cost)
+
+
+class CostGrid(eqx.Module):
+    """A cost grid placed in the world: row-major from the lower-left cell (row = y, column = x), yaw 0."""
+
+    cost: Float[Array, "H W"]  # 0..255, see the module doc
+    origin: Float[Array, " 2"]  # world x, y (m) of the lower-left corner of cell (0, 0)
+    resolution: Float[Array, ""]  # m per cell
+
+    def cell_of(self, xy: Float[Array, "*S 2"]) -> Int[Array, "*S 2"]:
+        """(row, col) of the cell holding each world point (may lie outside the grid)."""
+        return jnp.floor((xy[..., ::-1] - self.origin[::-1]) / self.resolution).astype(
+            jnp.int32
+        )
+
+    def center_of(self, rc: Int[Array, "*S 2"]) -> Float[Array, "*S 2"]:
+        """World x, y (m) of cell centres."""
+        return self.origin + (rc[..., ::-1].astype(jnp.float32) + 0.5) * self.resolution
+
+    def cost_at(self, xy: Float[Array, "*S 2"]) -> Float[Array, "*S"]:
+        """Cost of the cell under each world point; lethal outside the grid."""
+        rc = self.cell_of(xy)
+        h, w = self.cost.shape
+        inside = (
+            (rc[..., 0] >= 0) & (rc[..., 0] < h) & (rc[..., 1] >= 0) & (rc[..., 1] < w)
+        )
+        value = self.cost[
+            jnp.clip(rc[..., 0], 0, h - 1), jnp.clip(rc[..., 1], 0, w - 1)
+        ]
+        return jnp.where(inside, value, float(LETHAL))
