@@ -25,7 +25,7 @@ _STEP = tuple(math.hypot(dr, dc) for dr, dc in OFFSETS)
 _SWEEPS_PER_CHECK = 4
 
 
-def _neighbour(x: Array, dr: int, dc: int, fill: float) -> Array:
+def neighbour(x: Array, dr: int, dc: int, fill: float) -> Array:
     """y[r, c] = x[r + dr, c + dc], `fill` outside the grid."""
     padded = jnp.pad(x, 1, constant_values=fill)
     h, w = x.shape
@@ -48,7 +48,7 @@ def edge_costs(weight: Float[Array, "H W"]) -> Float[Array, "8 H W"]:
     """Cost of the edge from each cell to each of its 8 neighbours (inf off the grid or when blocked)."""
     return jnp.stack(
         [
-            s * 0.5 * (weight + _neighbour(weight, dr, dc, jnp.inf))
+            s * 0.5 * (weight + neighbour(weight, dr, dc, jnp.inf))
             for (dr, dc), s in zip(OFFSETS, _STEP)
         ]
     )
@@ -70,7 +70,7 @@ def cost_to_go(
 
     def sweep(v):
         cand = [
-            _neighbour(v, dr, dc, jnp.inf) + edges[k]
+            neighbour(v, dr, dc, jnp.inf) + edges[k]
             for k, (dr, dc) in enumerate(OFFSETS)
         ]
         return jnp.minimum(v, jnp.min(jnp.stack(cand), axis=0))
