@@ -1,5 +1,6 @@
 """Navigation orchestration: plans on an occupancy map, and the kinematic closed loop with replanning."""
 
+import json
 import math
 
 import jax
@@ -70,3 +71,36 @@ def test_closed_loop_reaches_goal_behind_wall():
     assert np.all(np.asarray(grid.cost_at(jnp.asarray(pose[:, :2]))) < INSCRIBED)
     assert np.linalg.norm(pose[-1, :2] - np.asarray(goal[:2])) < 0.25
     assert np.all(np.asarray(trace.plan_ok))
+
+
+def test_bench_section_json(capsys):
+    from jaxquad.cli import main
+
+    argv = [
+        "bench",
+        "--cpu",
+        "--json",
+        "--nav",
+        "--batch",
+        "2",
+        "--repeats",
+        "1",
+        "--nav-samples",
+        "8",
+        "--nav-horizon",
+        "4",
+        "--nav-grid",
+        "100",
+        "--nav-plan-batch",
+        "2",
+    ]
+    assert main(argv) == 0
+    rows = json.loads(capsys.readouterr().out)["sections"]["nav"]["rows"]
+    assert [r["kernel"] for r in rows] == [
+        "mppi_step",
+        "costmap",
+        "plan",
+        "frontier_choice",
+    ]
+    assert all(r["run_ms"] > 0 and r["batch"] == 2 for r in rows)
+    assert rows[2]["ok"] == 2
