@@ -1,5 +1,7 @@
 """Navigation and exploration for one robot (vmap over a fleet): costmap, global plan, MPPI, frontiers."""
 
+from jaxquad.nav import explore
+from jaxquad.nav.explore import ExploreParams, ExploreState
 from jaxquad.nav.navigate import (
     NavInputs,
     NavParams,
@@ -15,12 +17,15 @@ from jaxquad.nav.navigate import (
 )
 
 __all__ = [
+    "ExploreParams",
+    "ExploreState",
     "NavInputs",
     "NavParams",
     "NavState",
     "NavTrace",
     "Plan",
     "cost_grid",
+    "explore",
     "init",
     "plan",
     "replan",
