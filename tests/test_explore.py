@@ -64,7 +64,7 @@ def _explore_loop(truth, start, key):
     known0 = jnp.full(truth.shape, -1, jnp.int8)
     carry = (start, known0, nav.explore.init(truth.shape), nav.init(NAV, start))
     (_pose, known, _ex, _), (_poses, done, costs) = jax.lax.scan(
-        period, carry, jax.random.split(key, 150)
+        period, carry, jax.random.split(key, 80)
     )
     return known, done, costs
 
