@@ -24,9 +24,7 @@ def add_arguments(parser) -> None:
         default=1000,
         help="MPPI samples per robot (default 1000)",
     )
-    parser.add_argument(
-        "--nav-horizon", type=int, default=40, help="MPPI steps per sample (default 40)"
-    )
+    parser.add_argument("--nav-horizon", type=int, default=40, help="MPPI steps per sample (default 40)")
     parser.add_argument(
         "--nav-grid",
         type=int,
@@ -52,9 +50,7 @@ def _occupancy(side: int):
 
     from jaxquad.sim import worlds
 
-    g = worlds.occupancy_map(worlds.make_world("warehouse", 0), resolution=_RES).grid[
-        :side, :side
-    ]
+    g = worlds.occupancy_map(worlds.make_world("warehouse", 0), resolution=_RES).grid[:side, :side]
     out = np.full((side, side), -1, np.int8)
     out[: g.shape[0], : g.shape[1]] = g
     return out
@@ -81,27 +77,16 @@ def _mppi_rows(args, grid, open_rc, batch: int) -> list[dict]:
     from jaxquad.kernels import mppi
     from jaxquad.kernels.costmap import CostGrid
 
-    params = mppi.MppiParams.default(
-        n_samples=args.nav_samples, horizon=args.nav_horizon
-    )
+    params = mppi.MppiParams.default(n_samples=args.nav_samples, horizon=args.nav_horizon)
     rng = np.random.default_rng(batch)
     rc = open_rc[rng.integers(len(open_rc), size=batch)]
     r0 = np.clip(rc - _LOCAL // 2, 0, np.array(grid.shape) - _LOCAL)
     local = np.stack([grid[r : r + _LOCAL, c : c + _LOCAL] for r, c in r0])
     origin = (r0[:, ::-1] * _RES).astype(np.float32)
-    pose = np.c_[(rc[:, ::-1] + 0.5) * _RES, rng.uniform(-np.pi, np.pi, batch)].astype(
-        np.float32
-    )
+    pose = np.c_[(rc[:, ::-1] + 0.5) * _RES, rng.uniform(-np.pi, np.pi, batch)].astype(np.float32)
     goal = pose + np.array([2.0, 1.0, 0.5], np.float32)
-    path = (
-        pose[:, None, :2]
-        + np.linspace(0.0, 1.0, 160)[None, :, None] * (goal - pose)[:, None, :2]
-    )
-    cost = jax.jit(
-        jax.vmap(
-            lambda g: nav.cost_grid(nav.NavParams.default(), g, jnp.zeros(2), _RES).cost
-        )
-    )(local)
+    path = pose[:, None, :2] + np.linspace(0.0, 1.0, 160)[None, :, None] * (goal - pose)[:, None, :2]
+    cost = jax.jit(jax.vmap(lambda g: nav.cost_grid(nav.NavParams.default(), g, jnp.zeros(2), _RES).cost))(local)
     inputs = mppi.MppiInputs(
         pose=jnp.asarray(pose),
         path=jnp.asarray(path, jnp.float32),
@@ -138,9 +123,7 @@ def _grid_rows(args, occ, open_rc, batch: int) -> list[dict]:
     side = occ.shape[0]
     params = nav.NavParams.default()
     grids = jnp.asarray(np.broadcast_to(occ, (batch, side, side)))
-    make_cost = jax.jit(
-        jax.vmap(lambda g: nav.cost_grid(params, g, jnp.zeros(2), _RES))
-    )
+    make_cost = jax.jit(jax.vmap(lambda g: nav.cost_grid(params, g, jnp.zeros(2), _RES)))
     rows = [
         _row(
             "costmap",
@@ -156,9 +139,7 @@ def _grid_rows(args, occ, open_rc, batch: int) -> list[dict]:
     rng = np.random.default_rng(0)
     start = left[rng.integers(len(left), size=batch)]
     goal = right[rng.integers(len(right), size=batch)]
-    to_xy = lambda rc: np.c_[(rc[:, ::-1] + 0.5) * _RES, np.zeros(len(rc))].astype(
-        np.float32
-    )
+    to_xy = lambda rc: np.c_[(rc[:, ::-1] + 0.5) * _RES, np.zeros(len(rc))].astype(np.float32)
     plan = jax.jit(jax.vmap(nav.plan, in_axes=(None, 0, 0, 0)))
     p_args = (params, cgrid, jnp.asarray(to_xy(start)), jnp.asarray(to_xy(goal)))
     timing = time_jitted(plan, *p_args, repeats=_repeats(args))
@@ -167,9 +148,7 @@ def _grid_rows(args, occ, open_rc, batch: int) -> list[dict]:
 
     # Frontiers: the map known only within 5 m of the start; cost-to-go from the robot, then the choice.
     rr, cc = np.meshgrid(np.arange(side), np.arange(side), indexing="ij")
-    near = (rr[None] - start[:, 0, None, None]) ** 2 + (
-        cc[None] - start[:, 1, None, None]
-    ) ** 2 <= (5.0 / _RES) ** 2
+    near = (rr[None] - start[:, 0, None, None]) ** 2 + (cc[None] - start[:, 1, None, None]) ** 2 <= (5.0 / _RES) ** 2
     partial = jnp.asarray(np.where(near, occ[None], -1).astype(np.int8))
     fparams = FrontierParams.default()
 
@@ -183,9 +162,7 @@ def _grid_rows(args, occ, open_rc, batch: int) -> list[dict]:
     f_args = (partial, jnp.asarray(start, jnp.int32))
     timing = time_jitted(choose, *f_args, repeats=_repeats(args))
     found = int(np.sum(np.asarray(choose(*f_args).found)))
-    rows.append(
-        _row("frontier_choice", batch, *timing, grid=f"{side}x{side}", ok=found)
-    )
+    rows.append(_row("frontier_choice", batch, *timing, grid=f"{side}x{side}", ok=found))
     return rows
 
 
@@ -193,14 +170,10 @@ def run(args: argparse.Namespace) -> dict:
     import numpy as np
 
     if args.nav_samples < 2 or args.nav_horizon < 1 or args.nav_grid < _LOCAL:
-        raise ValueError(
-            f"--nav-samples >= 2, --nav-horizon >= 1 and --nav-grid >= {_LOCAL} are required"
-        )
+        raise ValueError(f"--nav-samples >= 2, --nav-horizon >= 1 and --nav-grid >= {_LOCAL} are required")
     occ = _occupancy(args.nav_grid)
     open_rc = np.argwhere(occ == 0)
-    open_rc = open_rc[
-        (open_rc.min(axis=1) > 10) & (open_rc.max(axis=1) < args.nav_grid - 10)
-    ]
+    open_rc = open_rc[(open_rc.min(axis=1) > 10) & (open_rc.max(axis=1) < args.nav_grid - 10)]
     rows = []
     for batch in args.batch:
         rows += _mppi_rows(args, occ, open_rc, batch)

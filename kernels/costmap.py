@@ -24,18 +24,10 @@ _NO_OBSTACLE = 1e6
 class CostmapParams(eqx.Module):
     """Inflation numbers (traced leaves, m unless named otherwise)."""
 
-    inscribed_radius: Float[
-        Array, ""
-    ]  # half the robot's width: cells closer than this are 253
-    inflation_radius: Float[
-        Array, ""
-    ]  # cost falls to 0 beyond this distance from an obstacle
-    cost_scaling_factor: Float[
-        Array, ""
-    ]  # 1/m, exponential decay rate of the inflation
-    occupied_thresh: Float[
-        Array, ""
-    ]  # occupancy (0..100) at and above which a cell is an obstacle
+    inscribed_radius: Float[Array, ""]  # half the robot's width: cells closer than this are 253
+    inflation_radius: Float[Array, ""]  # cost falls to 0 beyond this distance from an obstacle
+    cost_scaling_factor: Float[Array, ""]  # 1/m, exponential decay rate of the inflation
+    occupied_thresh: Float[Array, ""]  # occupancy (0..100) at and above which a cell is an obstacle
 
     @classmethod
     def default(cls, **overrides: float) -> CostmapParams:
@@ -78,13 +70,9 @@ def distance_transform(obstacle: Bool[Array, "H W"]) -> Float[Array, "H W"]:
     return jnp.minimum(jnp.sqrt(d2), _NO_OBSTACLE)
 
 
-def inflation_cost(
-    distance: Float[Array, "*S"], params: CostmapParams
-) -> Float[Array, "*S"]:
+def inflation_cost(distance: Float[Array, "*S"], params: CostmapParams) -> Float[Array, "*S"]:
     """Nav2's inflation formula for a distance (m) from the nearest obstacle (0 at the obstacle)."""
-    decay = (INSCRIBED - 1) * jnp.exp(
-        -params.cost_scaling_factor * (distance - params.inscribed_radius)
-    )
+    decay = (INSCRIBED - 1) * jnp.exp(-params.cost_scaling_factor * (distance - params.inscribed_radius))
     cost = jnp.where(distance <= params.inflation_radius, decay, 0.0)
     cost = jnp.where(distance <= params.inscribed_radius, float(INSCRIBED), cost)
     return jnp.where(distance <= 0.0, float(LETHAL), cost)
@@ -110,9 +98,7 @@ class CostGrid(eqx.Module):
 
     def cell_of(self, xy: Float[Array, "*S 2"]) -> Int[Array, "*S 2"]:
         """(row, col) of the cell holding each world point (may lie outside the grid)."""
-        return jnp.floor((xy[..., ::-1] - self.origin[::-1]) / self.resolution).astype(
-            jnp.int32
-        )
+        return jnp.floor((xy[..., ::-1] - self.origin[::-1]) / self.resolution).astype(jnp.int32)
 
     def center_of(self, rc: Int[Array, "*S 2"]) -> Float[Array, "*S 2"]:
         """World x, y (m) of cell centres."""
@@ -122,10 +108,6 @@ class CostGrid(eqx.Module):
         """Cost of the cell under each world point; lethal outside the grid."""
         rc = self.cell_of(xy)
         h, w = self.cost.shape
-        inside = (
-            (rc[..., 0] >= 0) & (rc[..., 0] < h) & (rc[..., 1] >= 0) & (rc[..., 1] < w)
-        )
-        value = self.cost[
-            jnp.clip(rc[..., 0], 0, h - 1), jnp.clip(rc[..., 1], 0, w - 1)
-        ]
+        inside = (rc[..., 0] >= 0) & (rc[..., 0] < h) & (rc[..., 1] >= 0) & (rc[..., 1] < w)
+        value = self.cost[jnp.clip(rc[..., 0], 0, h - 1), jnp.clip(rc[..., 1], 0, w - 1)]
         return jnp.where(inside, value, float(LETHAL))

@@ -14,9 +14,7 @@ from jaxquad.kernels.lie import wrap_angle
 from jaxtyping import Array, Bool, Float
 
 
-def obstacle(
-    traj: Float[Array, "S T 3"], grid: CostGrid, collision_cost: Float[Array, ""]
-) -> Float[Array, " S"]:
+def obstacle(traj: Float[Array, "S T 3"], grid: CostGrid, collision_cost: Float[Array, ""]) -> Float[Array, " S"]:
     """Mean inflation cost (0..1 of 252) along the trajectory, plus `collision_cost` if it enters a cell at
     inscribed cost or above (lethal, inscribed, unknown or off the map)."""
     c = grid.cost_at(traj[..., :2])
@@ -62,18 +60,12 @@ def path_heading(
 ) -> Float[Array, " S"]:
     """Mean absolute angle (rad) between the heading and the direction to the carrot: walk forwards."""
     delta = carrot - traj[..., :2]
-    far = (
-        jnp.sum(delta**2, axis=-1) > 0.01
-    )  # the direction is undefined on the carrot itself
+    far = jnp.sum(delta**2, axis=-1) > 0.01  # the direction is undefined on the carrot itself
     err = jnp.abs(wrap_angle(jnp.arctan2(delta[..., 1], delta[..., 0]) - traj[..., 2]))
     return jnp.where(near_goal, 0.0, jnp.mean(jnp.where(far, err, 0.0), axis=-1))
 
 
-def smoothness(
-    u: Float[Array, "S T 3"], u_prev: Float[Array, " 3"]
-) -> Float[Array, " S"]:
+def smoothness(u: Float[Array, "S T 3"], u_prev: Float[Array, " 3"]) -> Float[Array, " S"]:
     """Mean squared change of the command between steps, the first against the last command sent."""
-    du = jnp.diff(
-        jnp.concatenate([jnp.broadcast_to(u_prev, u[:, :1].shape), u], axis=1), axis=1
-    )
+    du = jnp.diff(jnp.concatenate([jnp.broadcast_to(u_prev, u[:, :1].shape), u], axis=1), axis=1)
     return jnp.mean(jnp.sum(du**2, axis=-1), axis=-1)

@@ -41,27 +41,19 @@ class FrontierParams(eqx.Module):
 
 
 class FrontierChoice(eqx.Module):
-    found: Bool[
-        Array, ""
-    ]  # False: no reachable, large enough, non-blacklisted frontier is left
-    goal_rc: Int[
-        Array, " 2"
-    ]  # reachable free cell next to the chosen cluster, nearest its centroid
+    found: Bool[Array, ""]  # False: no reachable, large enough, non-blacklisted frontier is left
+    goal_rc: Int[Array, " 2"]  # reachable free cell next to the chosen cluster, nearest its centroid
     centroid_rc: Float[Array, " 2"]  # (row, col) mean of the chosen cluster's cells
     size: Int[Array, ""]  # cells in the chosen cluster
     cost: Float[Array, ""]
     n_candidates: Int[Array, ""]  # clusters that qualified
 
 
-def free_cells(
-    grid: Int[Array, "H W"], free_thresh: float | Float[Array, ""]
-) -> Bool[Array, "H W"]:
+def free_cells(grid: Int[Array, "H W"], free_thresh: float | Float[Array, ""]) -> Bool[Array, "H W"]:
     return (grid >= 0) & (grid < free_thresh)
 
 
-def frontier_mask(
-    grid: Int[Array, "H W"], free_thresh: float | Float[Array, ""]
-) -> Bool[Array, "H W"]:
+def frontier_mask(grid: Int[Array, "H W"], free_thresh: float | Float[Array, ""]) -> Bool[Array, "H W"]:
     """Unknown cells (-1) with at least one free 4-neighbour."""
     free = free_cells(grid, free_thresh)
     touches = jnp.zeros_like(free)
@@ -91,9 +83,7 @@ def label_clusters(mask: Bool[Array, "H W"]) -> Int[Array, "H W"]:
     return lab
 
 
-def cluster_stats(
-    mask: Bool[Array, "H W"], labels: Int[Array, "H W"]
-) -> tuple[Int[Array, " N"], Float[Array, "N 2"]]:
+def cluster_stats(mask: Bool[Array, "H W"], labels: Int[Array, "H W"]) -> tuple[Int[Array, " N"], Float[Array, "N 2"]]:
     """Per label slot (H * W + 1 of them): cell count and (row, col) centroid (nan for empty slots)."""
     h, w = mask.shape
     n = h * w + 1
@@ -104,9 +94,7 @@ def cluster_stats(
         indexing="ij",
     )
     size = jax.ops.segment_sum(mask.reshape(-1).astype(jnp.int32), lab, n)
-    sums = jax.ops.segment_sum(
-        jnp.stack([r.reshape(-1), c.reshape(-1)], -1) * mask.reshape(-1, 1), lab, n
-    )
+    sums = jax.ops.segment_sum(jnp.stack([r.reshape(-1), c.reshape(-1)], -1) * mask.reshape(-1, 1), lab, n)
     return size, sums / jnp.where(size > 0, size, jnp.nan)[:, None]
 
 
@@ -133,14 +121,10 @@ def choose_frontier(
         ok = mask & neighbour(reach, dr, dc, False)
         nr, nc = rr + dr, cc + dc
         lab_k.append(jnp.where(ok, labels, n - 1))
-        d2_k.append(
-            jnp.where(ok, (nr - cen[..., 0]) ** 2 + (nc - cen[..., 1]) ** 2, jnp.inf)
-        )
+        d2_k.append(jnp.where(ok, (nr - cen[..., 0]) ** 2 + (nc - cen[..., 1]) ** 2, jnp.inf))
         v_k.append(jnp.where(ok, neighbour(value, dr, dc, jnp.inf), jnp.inf))
         idx_k.append(jnp.clip(nr, 0, h - 1) * w + jnp.clip(nc, 0, w - 1))
-    lab_k, d2_k, v_k, idx_k = (
-        jnp.stack(x).reshape(-1) for x in (lab_k, d2_k, v_k, idx_k)
-    )
+    lab_k, d2_k, v_k, idx_k = (jnp.stack(x).reshape(-1) for x in (lab_k, d2_k, v_k, idx_k))
     path_cost = jax.ops.segment_min(v_k, lab_k, n)
     best_d2 = jax.ops.segment_min(d2_k, lab_k, n)
     is_best = jnp.isfinite(d2_k) & (d2_k == best_d2[lab_k])
@@ -149,10 +133,7 @@ def choose_frontier(
     blocked = jnp.append(blacklist.reshape(-1), True)[jnp.minimum(goal_idx, h * w)]
     ok = (size * resolution >= params.min_size) & jnp.isfinite(path_cost) & ~blocked
     ok = ok.at[n - 1].set(False)
-    cost = (
-        params.potential_scale * path_cost * resolution
-        - params.gain_scale * size * resolution
-    )
+    cost = params.potential_scale * path_cost * resolution - params.gain_scale * size * resolution
     cost = jnp.where(ok, cost, jnp.inf)
     best = jnp.argmin(cost)
     g = jnp.minimum(goal_idx[best], h * w - 1)

@@ -35,23 +35,13 @@ class MppiParams(eqx.Module):
     v_min: Float[Array, " 3"]  # lower limits
     noise_std: Float[Array, " 3"]  # sampling std of vx, vy, yaw rate
     temperature: Float[Array, ""]  # softmax temperature, in cost units
-    weights: Float[
-        Array, " 7"
-    ]  # obstacle, goal distance, goal heading, path follow, path align, path heading, smooth
-    collision_cost: Float[
-        Array, ""
-    ]  # added to the obstacle critic for a trajectory entering a >= 253 cell
-    near_goal_radius: Float[
-        Array, ""
-    ]  # m, goal critics replace path critics inside this distance
-    lookahead: Float[
-        Array, ""
-    ]  # m along the path from the robot's nearest path point to the carrot
+    weights: Float[Array, " 7"]  # obstacle, goal distance, goal heading, path follow, path align, path heading, smooth
+    collision_cost: Float[Array, ""]  # added to the obstacle critic for a trajectory entering a >= 253 cell
+    near_goal_radius: Float[Array, ""]  # m: goal critics replace path critics inside this (straight and along the path)
+    lookahead: Float[Array, ""]  # m along the path from the robot's nearest path point to the carrot
     goal_xy_tol: Float[Array, ""]  # m
     goal_yaw_tol: Float[Array, ""]  # rad
-    k_yaw: Float[
-        Array, ""
-    ]  # 1/s, yaw rate per rad of error when turning in place at the goal
+    k_yaw: Float[Array, ""]  # 1/s, yaw rate per rad of error when turning in place at the goal
     progress_radius: Float[Array, ""]  # m
     progress_timeout: Float[Array, ""]  # s
     recovery_time: Float[Array, ""]  # s
@@ -59,9 +49,7 @@ class MppiParams(eqx.Module):
     recovery_yaw_rate: Float[Array, ""]  # rad/s
     n_samples: int = eqx.field(static=True)
     horizon: int = eqx.field(static=True)
-    path_window: int = eqx.field(
-        static=True
-    )  # path points scored by the path-align critic
+    path_window: int = eqx.field(static=True)  # path points scored by the path-align critic
 
     @classmethod
     def default(
@@ -93,9 +81,7 @@ class MppiParams(eqx.Module):
         }
         values.update(overrides)
         leaves = {k: jnp.asarray(v, jnp.float32) for k, v in values.items()}
-        return cls(
-            **leaves, n_samples=n_samples, horizon=horizon, path_window=path_window
-        )
+        return cls(**leaves, n_samples=n_samples, horizon=horizon, path_window=path_window)
 
 
 class MppiState(eqx.Module):
@@ -109,9 +95,7 @@ class MppiState(eqx.Module):
 
 class MppiInputs(eqx.Module):
     pose: Float[Array, " 3"]  # estimated x, y (m), yaw (rad), world frame
-    path: Float[
-        Array, "P 2"
-    ]  # global path, world x, y (m), from the robot towards the goal
+    path: Float[Array, "P 2"]  # global path, world x, y (m), from the robot towards the goal
     path_valid: Bool[Array, " P"]
     goal: Float[Array, " 3"]  # x, y, yaw
     grid: CostGrid
@@ -122,9 +106,7 @@ class MppiOutput(eqx.Module):
     cmd: Float[Array, " 3"]  # body-frame vx, vy (m/s), yaw rate (rad/s)
     arrived: Bool[Array, ""]
     recovering: Bool[Array, ""]
-    valid: Bool[
-        Array, ""
-    ]  # False when the pose, goal or path was not finite (then cmd = 0)
+    valid: Bool[Array, ""]  # False when the pose, goal or path was not finite (then cmd = 0)
     trajectory: Float[Array, "T 3"]  # the chosen sequence's predicted states
     cost: Float[Array, ""]  # its total cost
 
@@ -141,30 +123,23 @@ def init(params: MppiParams, pose: Float[Array, " 3"]) -> MppiState:
     )
 
 
-def rollout(
-    pose: Float[Array, " 3"], u: Float[Array, "*S T 3"], dt: Float[Array, ""]
-) -> Float[Array, "*S T 3"]:
+def rollout(pose: Float[Array, " 3"], u: Float[Array, "*S T 3"], dt: Float[Array, ""]) -> Float[Array, "*S T 3"]:
     """States after each step of the holonomic model (each step uses the heading at its start)."""
     theta = pose[2] + jnp.cumsum(u[..., 2] * dt, axis=-1)
-    theta0 = jnp.concatenate(
-        [jnp.broadcast_to(pose[2], theta[..., :1].shape), theta[..., :-1]], axis=-1
-    )
+    theta0 = jnp.concatenate([jnp.broadcast_to(pose[2], theta[..., :1].shape), theta[..., :-1]], axis=-1)
     c, s = jnp.cos(theta0), jnp.sin(theta0)
     dx = (c * u[..., 0] - s * u[..., 1]) * dt
     dy = (s * u[..., 0] + c * u[..., 1]) * dt
-    return jnp.stack(
-        [pose[0] + jnp.cumsum(dx, -1), pose[1] + jnp.cumsum(dy, -1), theta], axis=-1
-    )
+    return jnp.stack([pose[0] + jnp.cumsum(dx, -1), pose[1] + jnp.cumsum(dy, -1), theta], axis=-1)
 
 
 def _path_targets(
     params: MppiParams, pose, path, path_valid
-) -> tuple[Float[Array, " 2"], Float[Array, "K 2"]]:
-    """The carrot (lookahead along the path from the robot's nearest point) and the local path window."""
+) -> tuple[Float[Array, " 2"], Float[Array, "K 2"], Float[Array, ""]]:
+    """The carrot (lookahead along the path from the robot's nearest point), the local path window, and
+    the length (m) left to the path's end from the robot."""
     last = jnp.maximum(jnp.sum(path_valid) - 1, 0)
-    path = jnp.where(
-        path_valid[:, None], path, path[last]
-    )  # invalid tail = the path's end
+    path = jnp.where(path_valid[:, None], path, path[last])  # invalid tail = the path's end
     d2 = jnp.where(path_valid, jnp.sum((path - pose[:2]) ** 2, axis=-1), jnp.inf)
     near = jnp.argmin(d2)
     seg = jnp.linalg.norm(jnp.diff(path, axis=0), axis=-1)
@@ -172,24 +147,19 @@ def _path_targets(
     ahead = (arc - arc[near] >= params.lookahead) | (jnp.arange(path.shape[0]) >= last)
     k_carrot = jnp.argmax(ahead & (jnp.arange(path.shape[0]) >= near))
     # Window: path_window points evenly between the nearest point and the carrot.
-    idx = near + jnp.round(
-        jnp.linspace(0.0, 1.0, params.path_window) * (k_carrot - near)
-    ).astype(jnp.int32)
-    return path[k_carrot], path[idx]
+    idx = near + jnp.round(jnp.linspace(0.0, 1.0, params.path_window) * (k_carrot - near)).astype(jnp.int32)
+    remaining = jnp.sqrt(d2[near]) + arc[last] - arc[near]
+    return path[k_carrot], path[idx], remaining
 
 
 def _sample(params: MppiParams, nominal, key) -> Float[Array, "S T 3"]:
-    eps = (
-        jax.random.normal(key, (params.n_samples, params.horizon, 3)) * params.noise_std
-    )
+    eps = jax.random.normal(key, (params.n_samples, params.horizon, 3)) * params.noise_std
     eps = eps.at[0].set(0.0)
     u = jnp.clip(nominal + eps, params.v_min, params.v_max)
     return u.at[1].set(0.0)
 
 
-def _total_cost(
-    params: MppiParams, traj, u, last_cmd, inputs: MppiInputs, near_goal, carrot, window
-):
+def _total_cost(params: MppiParams, traj, u, last_cmd, inputs: MppiInputs, near_goal, carrot, window):
     w = params.weights
     terms = (
         critics.obstacle(traj, inputs.grid, params.collision_cost),
@@ -213,15 +183,11 @@ def _recovery_command(params: MppiParams, pose, grid: CostGrid) -> Float[Array, 
     )
 
 
-def step(
-    params: MppiParams, state: MppiState, inputs: MppiInputs
-) -> tuple[MppiState, MppiOutput]:
+def step(params: MppiParams, state: MppiState, inputs: MppiInputs) -> tuple[MppiState, MppiOutput]:
     """One control tick: sample, score, reweight, shift; goal checking and stuck recovery."""
     pose, goal = inputs.pose, inputs.goal
     valid = jnp.all(jnp.isfinite(pose)) & jnp.all(jnp.isfinite(goal))
-    valid = valid & jnp.all(
-        jnp.where(inputs.path_valid[:, None], jnp.isfinite(inputs.path), True)
-    )
+    valid = valid & jnp.all(jnp.where(inputs.path_valid[:, None], jnp.isfinite(inputs.path), True))
     pose = jnp.where(valid, pose, 0.0)
     goal = jnp.where(valid, goal, 0.0)
     inputs = eqx.tree_at(lambda x: (x.pose, x.goal), inputs, (pose, goal))
@@ -230,26 +196,22 @@ def step(
     yaw_err = wrap_angle(goal[2] - pose[2])
     at_xy = goal_dist < params.goal_xy_tol
     arrived = at_xy & (jnp.abs(yaw_err) < params.goal_yaw_tol)
-    near_goal = goal_dist < params.near_goal_radius
-
-    carrot, window = _path_targets(
+    carrot, window, remaining = _path_targets(
         params,
         pose,
         jnp.where(inputs.path_valid[:, None], inputs.path, 0.0),
         inputs.path_valid,
     )
+    # Near the goal along the path, not only in a straight line (a goal just behind a wall is far).
+    near_goal = jnp.maximum(goal_dist, remaining) < params.near_goal_radius
     u = _sample(params, state.nominal, inputs.key)
     traj = rollout(pose, u, params.dt)
-    cost = _total_cost(
-        params, traj, u, state.last_cmd, inputs, near_goal, carrot, window
-    )
+    cost = _total_cost(params, traj, u, state.last_cmd, inputs, near_goal, carrot, window)
     weights = jax.nn.softmax(-(cost - jnp.min(cost)) / params.temperature)
     nominal = jnp.einsum("s,stc->tc", weights, u)
     mppi_cmd = nominal[0]
 
-    turn = jnp.array([0.0, 0.0, 1.0]) * jnp.clip(
-        params.k_yaw * yaw_err, params.v_min[2], params.v_max[2]
-    )
+    turn = jnp.array([0.0, 0.0, 1.0]) * jnp.clip(params.k_yaw * yaw_err, params.v_min[2], params.v_max[2])
     cmd = jnp.where(at_xy, jnp.where(arrived, 0.0, turn), mppi_cmd)
 
     # Progress checker and recovery.
@@ -257,12 +219,8 @@ def step(
     since = jnp.where(moved | at_xy, 0.0, state.since_progress + params.dt)
     anchor = jnp.where(moved | at_xy, pose[:2], state.anchor)
     # Timers count in float32 ticks of dt: half a tick absorbs their rounding.
-    start_recovery = (since > params.progress_timeout) & (
-        state.recovery_left < 0.5 * params.dt
-    )
-    recovery_cmd = jnp.where(
-        start_recovery, _recovery_command(params, pose, inputs.grid), state.recovery_cmd
-    )
+    start_recovery = (since > params.progress_timeout) & (state.recovery_left < 0.5 * params.dt)
+    recovery_cmd = jnp.where(start_recovery, _recovery_command(params, pose, inputs.grid), state.recovery_cmd)
     recovery_left = jnp.where(start_recovery, params.recovery_time, state.recovery_left)
     recovering = recovery_left > 0.5 * params.dt
     cmd = jnp.where(recovering, recovery_cmd, cmd)

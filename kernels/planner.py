@@ -46,12 +46,7 @@ def step_weights(
 
 def edge_costs(weight: Float[Array, "H W"]) -> Float[Array, "8 H W"]:
     """Cost of the edge from each cell to each of its 8 neighbours (inf off the grid or when blocked)."""
-    return jnp.stack(
-        [
-            s * 0.5 * (weight + neighbour(weight, dr, dc, jnp.inf))
-            for (dr, dc), s in zip(OFFSETS, _STEP)
-        ]
-    )
+    return jnp.stack([s * 0.5 * (weight + neighbour(weight, dr, dc, jnp.inf)) for (dr, dc), s in zip(OFFSETS, _STEP)])
 
 
 def cost_to_go(
@@ -69,10 +64,7 @@ def cost_to_go(
     limit = h * w if max_sweeps is None else max_sweeps
 
     def sweep(v):
-        cand = [
-            neighbour(v, dr, dc, jnp.inf) + edges[k]
-            for k, (dr, dc) in enumerate(OFFSETS)
-        ]
+        cand = [neighbour(v, dr, dc, jnp.inf) + edges[k] for k, (dr, dc) in enumerate(OFFSETS)]
         return jnp.minimum(v, jnp.min(jnp.stack(cand), axis=0))
 
     def body(carry):
@@ -84,9 +76,7 @@ def cost_to_go(
         _, changed, n = carry
         return changed & (n < limit)
 
-    v, _, _ = jax.lax.while_loop(
-        cond, body, (v0, jnp.array(True), jnp.array(0, jnp.int32))
-    )
+    v, _, _ = jax.lax.while_loop(cond, body, (v0, jnp.array(True), jnp.array(0, jnp.int32)))
     return v
 
 
@@ -116,9 +106,7 @@ def descend(
         return jnp.where(move, nb[k], rc), (rc, here > 0.0)
 
     steps = (n_points - 1) * stride + 1
-    _, (cells, away) = jax.lax.scan(
-        step, jnp.asarray(start_rc, jnp.int32), None, length=steps
-    )
+    _, (cells, away) = jax.lax.scan(step, jnp.asarray(start_rc, jnp.int32), None, length=steps)
     n_away = jnp.sum(away)  # steps taken before the source was reached
     idx = jnp.arange(n_points) * stride
     complete = (value[start_rc[0], start_rc[1]] < jnp.inf) & (n_away < steps)
@@ -134,10 +122,6 @@ def nearest_open_cell(
     """The traversable cell nearest to `rc` (Euclidean, cells) within `max_distance` cells, and whether one exists."""
     h, w = weight.shape
     r, c = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
-    d2 = jnp.where(
-        jnp.isfinite(weight), (r - rc[0]) ** 2 + (c - rc[1]) ** 2, jnp.inf
-    ).astype(jnp.float32)
+    d2 = jnp.where(jnp.isfinite(weight), (r - rc[0]) ** 2 + (c - rc[1]) ** 2, jnp.inf).astype(jnp.float32)
     k = jnp.argmin(d2)
-    return jnp.stack([k // w, k % w]).astype(jnp.int32), d2.reshape(-1)[
-        k
-    ] <= max_distance**2
+    return jnp.stack([k // w, k % w]).astype(jnp.int32), d2.reshape(-1)[k] <= max_distance**2

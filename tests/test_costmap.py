@@ -29,9 +29,7 @@ def test_distance_transform_matches_scipy(seed, shape, density):
     obstacle = rng.random(shape) < density
     obstacle[rng.integers(shape[0]), rng.integers(shape[1])] = True
     expected = ndimage.distance_transform_edt(~obstacle)
-    np.testing.assert_allclose(
-        np.asarray(_edt(jnp.asarray(obstacle))), expected, rtol=1e-6, atol=1e-5
-    )
+    np.testing.assert_allclose(np.asarray(_edt(jnp.asarray(obstacle))), expected, rtol=1e-6, atol=1e-5)
 
 
 def test_distance_transform_without_obstacles_is_large():
@@ -72,12 +70,8 @@ def test_costmap_vmaps_over_robots_with_traced_params():
     grid = np.zeros((40, 40), np.int8)
     grid[20, 20] = 100
     params = jax.tree.map(lambda x: jnp.stack([x, x]), CostmapParams.default())
-    params = params.__class__(
-        **{**vars(params), "inflation_radius": jnp.array([0.3, 0.7])}
-    )
-    cost = jax.jit(jax.vmap(costmap_from_occupancy, in_axes=(None, None, 0)))(
-        jnp.asarray(grid), 0.05, params
-    )
+    params = params.__class__(**{**vars(params), "inflation_radius": jnp.array([0.3, 0.7])})
+    cost = jax.jit(jax.vmap(costmap_from_occupancy, in_axes=(None, None, 0)))(jnp.asarray(grid), 0.05, params)
     # 0.5 m from the obstacle: beyond 0.3 m inflation, inside 0.7 m.
     assert float(cost[0, 20, 30]) == 0.0
     assert float(cost[1, 20, 30]) == pytest.approx(252 * math.exp(-3.0 * 0.3), rel=1e-5)

@@ -55,9 +55,7 @@ def test_mask_and_clusters_match_scipy(seed):
     assert np.all(labels[~mask] == mask.size)
     for k in range(1, n_ref + 1):
         cells = np.flatnonzero(ref == k)
-        assert np.all(
-            labels.flat[cells] == cells.min()
-        )  # one label per component, its smallest index
+        assert np.all(labels.flat[cells] == cells.min())  # one label per component, its smallest index
     assert len(np.unique(labels[mask])) == n_ref
 
 
@@ -75,9 +73,7 @@ def _reference_choice(grid, value, blacklist, min_size, res, gain_scale):
             (r + dr, c + dc)
             for r, c in cells
             for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1))
-            if 0 <= r + dr < grid.shape[0]
-            and 0 <= c + dc < grid.shape[1]
-            and reach[r + dr, c + dc]
+            if 0 <= r + dr < grid.shape[0] and 0 <= c + dc < grid.shape[1] and reach[r + dr, c + dc]
         }
         if not cand:
             continue
@@ -96,25 +92,17 @@ def _reference_choice(grid, value, blacklist, min_size, res, gain_scale):
 def test_choice_matches_loop_reference(seed, gain_scale):
     grid = _random_map(seed)
     res = 0.05
-    weight = np.where((grid >= 0) & (grid < FREE_THRESH), 1.0, np.inf).astype(
-        np.float32
-    )
+    weight = np.where((grid >= 0) & (grid < FREE_THRESH), 1.0, np.inf).astype(np.float32)
     start = np.argwhere(np.isfinite(weight))[len(np.argwhere(np.isfinite(weight))) // 2]
     source = np.zeros(grid.shape, bool)
     source[tuple(start)] = True
     value = np.asarray(_ctg(jnp.asarray(weight), jnp.asarray(source)))
     blacklist = np.zeros(grid.shape, bool)
     params = FrontierParams.default(gain_scale=gain_scale)
-    assert (
-        _reference_choice(grid, value, blacklist, 0.75, res, gain_scale)[1] is not None
-    )
+    assert _reference_choice(grid, value, blacklist, 0.75, res, gain_scale)[1] is not None
     for _ in range(3):  # choose, blacklist the goal, choose again
-        want_cost, want = _reference_choice(
-            grid, value, blacklist, 0.75, res, gain_scale
-        )
-        got = _choose(
-            jnp.asarray(grid), res, jnp.asarray(value), jnp.asarray(blacklist), params
-        )
+        want_cost, want = _reference_choice(grid, value, blacklist, 0.75, res, gain_scale)
+        got = _choose(jnp.asarray(grid), res, jnp.asarray(value), jnp.asarray(blacklist), params)
         assert bool(got.found) == (want is not None)
         if want is None:
             break

@@ -33,9 +33,7 @@ def _plan(grid: CostGrid, start, goal):
     weight = step_weights(grid.cost, 3.0)
     g = grid.cell_of(jnp.asarray(goal[:2]))
     value = cost_to_go(weight, jnp.zeros(weight.shape, bool).at[g[0], g[1]].set(True))
-    cells, valid, complete = descend(
-        value, weight, grid.cell_of(jnp.asarray(start[:2])), n_points=96, stride=2
-    )
+    cells, valid, complete = descend(value, weight, grid.cell_of(jnp.asarray(start[:2])), n_points=96, stride=2)
     return grid.center_of(cells), valid, complete
 
 
@@ -45,17 +43,13 @@ def _closed_loop(grid, start, goal, key):
 
     def tick(carry, k):
         pose, state = carry
-        inputs = mppi.MppiInputs(
-            pose=pose, path=path, path_valid=valid, goal=goal, grid=grid, key=k
-        )
+        inputs = mppi.MppiInputs(pose=pose, path=path, path_valid=valid, goal=goal, grid=grid, key=k)
         state, out = mppi.step(PARAMS, state, inputs)
         pose = mppi.rollout(pose, out.cmd[None], PARAMS.dt)[0]
         return (pose, state), (pose, out.arrived, out.cmd)
 
     keys = jax.random.split(key, 300)
-    _, (poses, arrived, cmds) = jax.lax.scan(
-        tick, (start, mppi.init(PARAMS, start)), keys
-    )
+    _, (poses, arrived, cmds) = jax.lax.scan(tick, (start, mppi.init(PARAMS, start)), keys)
     return poses, arrived, cmds
 
 
@@ -89,10 +83,7 @@ def test_reaches_goal_around_obstacle_without_touching_it(seed):
     assert arrived.any(), poses[-1]
     first = int(np.argmax(arrived))
     assert np.linalg.norm(poses[first - 1, :2] - np.asarray(goal[:2])) < 0.25
-    assert (
-        abs((poses[first - 1, 2] - math.pi / 2 + math.pi) % (2 * math.pi) - math.pi)
-        < 0.25
-    )
+    assert abs((poses[first - 1, 2] - math.pi / 2 + math.pi) % (2 * math.pi) - math.pi) < 0.25
     assert np.all(np.asarray(grid.cost_at(jnp.asarray(poses[:, :2]))) < INSCRIBED)
     lo, hi = np.asarray(PARAMS.v_min), np.asarray(PARAMS.v_max)
     assert np.all(cmds >= lo - 1e-6) and np.all(cmds <= hi + 1e-6)
@@ -100,9 +91,7 @@ def test_reaches_goal_around_obstacle_without_touching_it(seed):
 
 
 def _stuck_run(grid, pose, n):
-    params = mppi.MppiParams.default(
-        n_samples=64, horizon=10, progress_timeout=1.0, recovery_time=0.5
-    )
+    params = mppi.MppiParams.default(n_samples=64, horizon=10, progress_timeout=1.0, recovery_time=0.5)
     path = jnp.broadcast_to(jnp.array([3.4, 3.4]), (8, 2))
     inputs = mppi.MppiInputs(
         pose=pose,
@@ -117,35 +106,23 @@ def _stuck_run(grid, pose, n):
         state, out = mppi.step(params, state, _with_key(inputs, k))
         return state, (out.recovering, out.cmd)
 
-    return jax.lax.scan(
-        tick, mppi.init(params, pose), jax.random.split(jax.random.key(0), n)
-    )[1]
+    return jax.lax.scan(tick, mppi.init(params, pose), jax.random.split(jax.random.key(0), n))[1]
 
 
 def _with_key(inputs, k):
-    return mppi.MppiInputs(
-        inputs.pose, inputs.path, inputs.path_valid, inputs.goal, inputs.grid, k
-    )
+    return mppi.MppiInputs(inputs.pose, inputs.path, inputs.path_valid, inputs.goal, inputs.grid, k)
 
 
 def test_stuck_robot_backs_up_or_turns():
     grid = _world()
-    rec, cmd = jax.jit(_stuck_run, static_argnums=2)(
-        grid, jnp.array([2.0, 0.6, 0.0]), 20
-    )
+    rec, cmd = jax.jit(_stuck_run, static_argnums=2)(grid, jnp.array([2.0, 0.6, 0.0]), 20)
     rec, cmd = np.asarray(rec), np.asarray(cmd)
     # No progress for 1 s (ten ticks of 0.1 s, to float rounding) -> 0.5 s of backing up, then MPPI again.
     first = int(np.argmax(rec))
-    assert (
-        first in (9, 10) and rec[first : first + 5].all() and not rec[first + 5 :].any()
-    )
-    np.testing.assert_allclose(
-        cmd[first : first + 5], np.tile([-0.1, 0.0, 0.0], (5, 1)), atol=1e-7
-    )
+    assert first in (9, 10) and rec[first : first + 5].all() and not rec[first + 5 :].any()
+    np.testing.assert_allclose(cmd[first : first + 5], np.tile([-0.1, 0.0, 0.0], (5, 1)), atol=1e-7)
     # Facing away from a wall 0.2 m behind: no room to back up, so it turns in place.
-    rec, cmd = jax.jit(_stuck_run, static_argnums=2)(
-        grid, jnp.array([0.25, 2.0, 0.0]), 13
-    )
+    rec, cmd = jax.jit(_stuck_run, static_argnums=2)(grid, jnp.array([0.25, 2.0, 0.0]), 13)
     np.testing.assert_allclose(np.asarray(cmd)[11], [0.0, 0.0, 0.5], atol=1e-7)
 
 
@@ -170,9 +147,7 @@ def test_step_vmaps_over_robots():
     grid = _world()
     params = mppi.MppiParams.default(n_samples=32, horizon=8)
     poses = jnp.array([[0.6, 2.0, 0.0], [3.0, 3.0, 1.0], [1.0, 1.0, -1.0]])
-    path = jnp.broadcast_to(
-        jnp.linspace(jnp.array([0.6, 0.6]), jnp.array([3.4, 3.4]), 20), (3, 20, 2)
-    )
+    path = jnp.broadcast_to(jnp.linspace(jnp.array([0.6, 0.6]), jnp.array([3.4, 3.4]), 20), (3, 20, 2))
     inputs = mppi.MppiInputs(
         poses,
         path,
@@ -186,6 +161,4 @@ def test_step_vmaps_over_robots():
     for i in range(3):
         one = jax.tree.map(lambda x, i=i: x[i], inputs)
         _, ref = jax.jit(mppi.step)(params, mppi.init(params, poses[i]), one)
-        np.testing.assert_allclose(
-            np.asarray(out.cmd[i]), np.asarray(ref.cmd), atol=1e-5
-        )
+        np.testing.assert_allclose(np.asarray(out.cmd[i]), np.asarray(ref.cmd), atol=1e-5)

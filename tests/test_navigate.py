@@ -11,9 +11,7 @@ from jaxquad.kernels.costmap import INSCRIBED
 from jaxquad import nav
 from jaxquad.io.maps import OccupancyMap
 
-PARAMS = nav.NavParams.default(
-    n_samples=256, horizon=30, n_path_points=64, path_stride=3, replan_ticks=10
-)
+PARAMS = nav.NavParams.default(n_samples=256, horizon=30, n_path_points=64, path_stride=3, replan_ticks=10)
 
 
 def _room():
@@ -27,9 +25,7 @@ def _room():
 
 
 def _grid(occ):
-    return nav.cost_grid(
-        PARAMS, jnp.asarray(occ.grid), jnp.asarray(occ.origin[:2]), occ.resolution
-    )
+    return nav.cost_grid(PARAMS, jnp.asarray(occ.grid), jnp.asarray(occ.origin[:2]), occ.resolution)
 
 
 _plan = jax.jit(nav.plan)
@@ -43,10 +39,7 @@ def test_plan_avoids_obstacles_and_snaps_blocked_goal():
     p = _plan(PARAMS, grid, pose, jnp.array([3.0, 2.0, 0.0]))
     path = np.asarray(p.path)[np.asarray(p.valid)]
     assert bool(p.ok)
-    assert (
-        np.linalg.norm(path[0] - [0.0, 2.0]) < 0.05
-        and np.linalg.norm(path[-1] - [3.0, 2.0]) < 0.05
-    )
+    assert np.linalg.norm(path[0] - [0.0, 2.0]) < 0.05 and np.linalg.norm(path[-1] - [3.0, 2.0]) < 0.05
     assert np.all(np.asarray(grid.cost_at(jnp.asarray(path))) < INSCRIBED)
     assert path[:, 1].min() < 0.0  # around the bottom end of the wall (y from 0 to 3 m)
     # A goal on the wall moves to the nearest open cell (within the 0.5 m planner tolerance).

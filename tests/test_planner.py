@@ -25,15 +25,9 @@ def _reference_graph(weight):
                 for dc in (-1, 0, 1):
                     rr, cc = r + dr, c + dc
                     inside = (dr or dc) and 0 <= rr < h and 0 <= cc < w
-                    if (
-                        inside
-                        and np.isfinite(weight[r, c])
-                        and np.isfinite(weight[rr, cc])
-                    ):
+                    if inside and np.isfinite(weight[r, c]) and np.isfinite(weight[rr, cc]):
                         src.append(r * w + c), dst.append(rr * w + cc)
-                        cost.append(
-                            math.hypot(dr, dc) * 0.5 * (weight[r, c] + weight[rr, cc])
-                        )
+                        cost.append(math.hypot(dr, dc) * 0.5 * (weight[r, c] + weight[rr, cc]))
     return sparse.csr_matrix((cost, (src, dst)), shape=(h * w, h * w))
 
 
@@ -68,19 +62,14 @@ def test_descent_path_is_a_shortest_path():
     value = np.asarray(_ctg(jnp.asarray(weight), jnp.asarray(source)))
     reach = np.argwhere(np.isfinite(value))
     start = reach[np.argmax(value[np.isfinite(value)])]
-    cells, valid, complete = _descend(
-        jnp.asarray(value), jnp.asarray(weight), jnp.asarray(start), n_points=400
-    )
+    cells, valid, complete = _descend(jnp.asarray(value), jnp.asarray(weight), jnp.asarray(start), n_points=400)
     cells, valid = np.asarray(cells), np.asarray(valid)
     assert bool(complete)
     path = cells[valid]
     assert tuple(path[0]) == tuple(start) and tuple(path[-1]) == (0, 0)
     steps = np.diff(path, axis=0)
     assert np.all(np.abs(steps).max(axis=1) == 1)
-    length = sum(
-        math.hypot(*d) * 0.5 * (weight[tuple(a)] + weight[tuple(b)])
-        for d, a, b in zip(steps, path, path[1:])
-    )
+    length = sum(math.hypot(*d) * 0.5 * (weight[tuple(a)] + weight[tuple(b)]) for d, a, b in zip(steps, path, path[1:]))
     assert length == pytest.approx(value[tuple(start)], rel=1e-5)
     assert np.all(np.isfinite(weight[path[:, 0], path[:, 1]]))
 
@@ -90,9 +79,7 @@ def test_descent_stride_mask_and_unreachable():
     source = np.zeros((20, 30), bool)
     source[10, 25] = True
     value = _ctg(jnp.asarray(weight), jnp.asarray(source))
-    cells, valid, complete = _descend(
-        value, jnp.asarray(weight), jnp.array([10, 2]), n_points=10, stride=4
-    )
+    cells, valid, complete = _descend(value, jnp.asarray(weight), jnp.array([10, 2]), n_points=10, stride=4)
     # 23 straight steps: points at steps 0, 4, ..., 20 and then the goal; the rest invalid.
     assert bool(complete) and int(np.sum(valid)) == 7
     assert tuple(np.asarray(cells)[6]) == (10, 25) and tuple(np.asarray(cells)[2]) == (
@@ -102,9 +89,7 @@ def test_descent_stride_mask_and_unreachable():
     weight[:, 15] = np.inf
     value = _ctg(jnp.asarray(weight), jnp.asarray(source))
     assert np.isinf(float(value[10, 2]))
-    _, valid, complete = _descend(
-        value, jnp.asarray(weight), jnp.array([10, 2]), n_points=10, stride=4
-    )
+    _, valid, complete = _descend(value, jnp.asarray(weight), jnp.array([10, 2]), n_points=10, stride=4)
     assert not bool(complete) and not np.any(np.asarray(valid))
 
 
@@ -126,10 +111,6 @@ def test_cost_to_go_vmaps_over_robots():
     open_idx = np.flatnonzero(np.isfinite(np.asarray(weight)))
     for i, k in enumerate(open_idx[[0, 100, 500]]):
         sources[i].flat[k] = True
-    batched = jax.jit(jax.vmap(cost_to_go, in_axes=(None, 0)))(
-        weight, jnp.asarray(sources)
-    )
+    batched = jax.jit(jax.vmap(cost_to_go, in_axes=(None, 0)))(weight, jnp.asarray(sources))
     for i in range(3):
-        np.testing.assert_allclose(
-            np.asarray(batched[i]), np.asarray(_ctg(weight, jnp.asarray(sources[i])))
-        )
+        np.testing.assert_allclose(np.asarray(batched[i]), np.asarray(_ctg(weight, jnp.asarray(sources[i]))))

@@ -22,16 +22,10 @@ from jaxquad.kernels.planner import cost_to_go, nearest_open_cell, step_weights
 class ExploreParams(eqx.Module):
     frontier: FrontierParams
     cost_weight: Float[Array, ""]  # planner step weight = 1 + cost_weight * cost / 252
-    blacklist_timeout: Float[
-        Array, ""
-    ]  # s without progress before the goal is blacklisted
-    progress_margin: Float[
-        Array, ""
-    ]  # m the distance to the goal must shrink by to count as progress
+    blacklist_timeout: Float[Array, ""]  # s without progress before the goal is blacklisted
+    progress_margin: Float[Array, ""]  # m the distance to the goal must shrink by to count as progress
     blacklist_radius: Float[Array, ""]  # m around a blacklisted goal
-    start_tolerance: Float[
-        Array, ""
-    ]  # m: a robot on a blocked cell plans from the nearest open cell
+    start_tolerance: Float[Array, ""]  # m: a robot on a blocked cell plans from the nearest open cell
 
     @classmethod
     def default(cls, **frontier_overrides: float) -> ExploreParams:
@@ -83,28 +77,18 @@ def update(
     give_up = state.has_goal & (since > params.blacklist_timeout)
     rr, cc = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
     g = grid.cell_of(state.goal[:2])
-    disk = (rr - g[0]) ** 2 + (cc - g[1]) ** 2 <= (
-        params.blacklist_radius / grid.resolution
-    ) ** 2
+    disk = (rr - g[0]) ** 2 + (cc - g[1]) ** 2 <= (params.blacklist_radius / grid.resolution) ** 2
     blacklist = state.blacklist | (give_up & disk)
 
     weight = step_weights(grid.cost, params.cost_weight)
-    start, _ = nearest_open_cell(
-        weight, grid.cell_of(pose[:2]), params.start_tolerance / grid.resolution
-    )
+    start, _ = nearest_open_cell(weight, grid.cell_of(pose[:2]), params.start_tolerance / grid.resolution)
     value = cost_to_go(weight, jnp.zeros((h, w), bool).at[start[0], start[1]].set(True))
-    choice = choose_frontier(
-        occupancy, grid.resolution, value, blacklist, params.frontier
-    )
+    choice = choose_frontier(occupancy, grid.resolution, value, blacklist, params.frontier)
 
     xy = grid.center_of(choice.goal_rc)
     goal = jnp.append(xy, jnp.arctan2(xy[1] - pose[1], xy[0] - pose[0]))
     # A goal that moved by more than the blacklist radius is a new goal: the progress clock restarts.
-    same = (
-        state.has_goal
-        & ~give_up
-        & (jnp.linalg.norm(xy - state.goal[:2]) <= params.blacklist_radius)
-    )
+    same = state.has_goal & ~give_up & (jnp.linalg.norm(xy - state.goal[:2]) <= params.blacklist_radius)
     new_distance = jnp.linalg.norm(xy - pose[:2])
     state = ExploreState(
         blacklist=blacklist,

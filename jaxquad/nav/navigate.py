@@ -23,9 +23,7 @@ class NavParams(eqx.Module):
     costmap: CostmapParams
     controller: mppi.MppiParams
     cost_weight: Float[Array, ""]  # planner step weight = 1 + cost_weight * cost / 252
-    goal_tolerance: Float[
-        Array, ""
-    ]  # m: a blocked goal (or start) moves to the nearest open cell this close
+    goal_tolerance: Float[Array, ""]  # m: a blocked goal (or start) moves to the nearest open cell this close
     n_path_points: int = eqx.field(static=True)
     path_stride: int = eqx.field(static=True)  # grid cells between two path points
     replan_ticks: int = eqx.field(static=True)  # control ticks between two plans
@@ -54,9 +52,7 @@ class NavParams(eqx.Module):
 class Plan(eqx.Module):
     path: Float[Array, "P 2"]  # world x, y (m) from the robot towards the goal
     valid: Bool[Array, " P"]
-    ok: Bool[
-        Array, ""
-    ]  # start and goal found open and connected, path within n_path_points
+    ok: Bool[Array, ""]  # start and goal found open and connected, path within n_path_points
     goal_rc: Int[Array, " 2"]  # the goal cell the plan leads to
 
 
@@ -100,9 +96,7 @@ def plan(
     start_rc, start_ok = nearest_open_cell(weight, grid.cell_of(pose[:2]), tol_cells)
     source = jnp.zeros(weight.shape, bool).at[goal_rc[0], goal_rc[1]].set(goal_ok)
     value = cost_to_go(weight, source)
-    cells, valid, complete = descend(
-        value, weight, start_rc, params.n_path_points, params.path_stride
-    )
+    cells, valid, complete = descend(value, weight, start_rc, params.n_path_points, params.path_stride)
     ok = goal_ok & start_ok & complete
     finite = jnp.all(jnp.isfinite(pose)) & jnp.all(jnp.isfinite(goal))
     return Plan(
@@ -125,14 +119,10 @@ def init(params: NavParams, pose: Float[Array, " 3"]) -> NavState:
 
 
 def replan(params: NavParams, state: NavState, inputs: NavInputs) -> NavState:
-    return eqx.tree_at(
-        lambda s: s.plan, state, plan(params, inputs.grid, inputs.pose, inputs.goal)
-    )
+    return eqx.tree_at(lambda s: s.plan, state, plan(params, inputs.grid, inputs.pose, inputs.goal))
 
 
-def step(
-    params: NavParams, state: NavState, inputs: NavInputs
-) -> tuple[NavState, mppi.MppiOutput]:
+def step(params: NavParams, state: NavState, inputs: NavInputs) -> tuple[NavState, mppi.MppiOutput]:
     """One control tick along the current plan (without a valid plan, MPPI drives on the goal critics)."""
     p = state.plan
     path = jnp.where(p.ok, p.path, inputs.goal[:2])
@@ -165,14 +155,14 @@ def simulate_kinematic(
     key: Key[Array, ""],
     n_plans: int,
 ) -> NavTrace:
-    """Closed loop in the ideal kinematic model (pose known, commands executed exactly), n_plans x replan_ticks ticks."""
+    """Closed loop in the ideal kinematic model (pose known, commands executed exactly).
+
+    n_plans planning periods of replan_ticks control ticks each."""
     dt = params.controller.dt
 
     def tick(carry, k):
         pose, state = carry
-        state, out = step(
-            params, state, NavInputs(pose=pose, goal=goal, grid=grid, key=k)
-        )
+        state, out = step(params, state, NavInputs(pose=pose, goal=goal, grid=grid, key=k))
         pose = mppi.rollout(pose, out.cmd[None], dt)[0]
         return (pose, state), (
             pose,
@@ -185,9 +175,7 @@ def simulate_kinematic(
     def period(carry, k):
         pose, state = carry
         state = replan(params, state, NavInputs(pose=pose, goal=goal, grid=grid, key=k))
-        return jax.lax.scan(
-            tick, (pose, state), jax.random.split(k, params.replan_ticks)
-        )
+        return jax.lax.scan(tick, (pose, state), jax.random.split(k, params.replan_ticks))
 
     carry = (jnp.asarray(start, jnp.float32), init(params, start))
     _, trace = jax.lax.scan(period, carry, jax.random.split(key, n_plans))
