@@ -162,3 +162,77 @@ def test_step_vmaps_over_robots():
         one = jax.tree.map(lambda x, i=i: x[i], inputs)
         _, ref = jax.jit(mppi.step)(params, mppi.init(params, poses[i]), one)
         np.testing.assert_allclose(np.asarray(out.cmd[i]), np.asarray(ref.cmd), atol=1e-5)
+
+
+def _wrap(a):
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def test_critics_match_loop_references():
+    from jaxquad.kernels import critics
+
+    rng = np.random.default_rng(4)
+    grid = _world()
+    cost = np.asarray(grid.cost)
+    traj = np.c_[rng.uniform(-0.2, 4.2, (6 * 7, 2)), rng.uniform(-4, 4, 6 * 7)].reshape(6, 7, 3).astype(np.float32)
+    u = rng.normal(size=(6, 7, 3)).astype(np.float32)
+    u_prev = rng.normal(size=3).astype(np.float32)
+    goal = np.array([3.0, 1.0, 2.0], np.float32)
+    carrot = np.array([1.0, 3.5], np.float32)
+    window = rng.uniform(0, 4, (5, 2)).astype(np.float32)
+    yes, no = jnp.array(True), jnp.array(False)
+    got = {
+        "obstacle": critics.obstacle(jnp.asarray(traj), grid, jnp.float32(1000.0)),
+        "goal_distance": critics.goal_distance(jnp.asarray(traj), jnp.asarray(goal), yes),
+        "goal_heading": critics.goal_heading(jnp.asarray(traj), jnp.asarray(goal), yes),
+        "path_follow": critics.path_follow(jnp.asarray(traj), jnp.asarray(carrot), no),
+        "path_align": critics.path_align(jnp.asarray(traj), jnp.asarray(window), no),
+        "path_heading": critics.path_heading(jnp.asarray(traj), jnp.asarray(carrot), no),
+        "smoothness": critics.smoothness(jnp.asarray(u), jnp.asarray(u_prev)),
+    }
+    for s in range(6):
+        cells = []
+        for x, y, _ in traj[s]:
+            r, c = math.floor(y / RES), math.floor(x / RES)
+            cells.append(cost[r, c] if 0 <= r < 80 and 0 <= c < 80 else 254.0)
+        cells = np.array(cells)
+        want = {
+            "obstacle": np.mean(np.minimum(cells, 252) / 252) + (1000.0 if np.any(cells >= 253) else 0.0),
+            "goal_distance": np.mean([math.dist(p[:2], goal[:2]) for p in traj[s]]),
+            "goal_heading": np.mean([abs(_wrap(p[2] - goal[2])) for p in traj[s]]),
+            "path_follow": math.dist(traj[s, -1, :2], carrot),
+            "path_align": np.mean([min(math.dist(p[:2], q) for q in window) for p in traj[s]]),
+            "path_heading": np.mean(
+                [abs(_wrap(math.atan2(carrot[1] - p[1], carrot[0] - p[0]) - p[2])) for p in traj[s]]
+            ),
+            "smoothness": np.mean([np.sum((u[s, t] - (u[s, t - 1] if t else u_prev)) ** 2) for t in range(7)]),
+        }
+        for name, value in want.items():
+            assert float(got[name][s]) == pytest.approx(value, rel=1e-4, abs=1e-5), (name, s)
+    # The goal critics are off far from the goal, the path critics near it.
+    assert float(jnp.max(critics.goal_distance(jnp.asarray(traj), jnp.asarray(goal), no))) == 0.0
+    assert float(jnp.max(critics.path_align(jnp.asarray(traj), jnp.asarray(window), yes))) == 0.0
+
+
+def test_nominal_is_the_softmax_weighted_mean_of_the_samples():
+    """With one sample far better than the rest and a tiny temperature, the new nominal is that sample."""
+    grid = _world()
+    params = mppi.MppiParams.default(n_samples=64, horizon=10, temperature=1e-4)
+    pose = jnp.array([1.0, 1.0, 0.0])
+    goal = jnp.array([1.5, 1.0, 0.0])  # near: only the goal critics and the smoothness/obstacle ones act
+    inputs = mppi.MppiInputs(pose, jnp.broadcast_to(goal[:2], (8, 2)), jnp.ones(8, bool), goal, grid, jax.random.key(3))
+    state = mppi.init(params, pose)
+    _, out = jax.jit(mppi.step)(params, state, inputs)
+    # Reference: the samples as the controller draws them, scored by a NumPy sum of the same critics.
+    u = np.asarray(mppi._sample(params, state.nominal, inputs.key))
+    traj = np.asarray(mppi.rollout(pose, jnp.asarray(u), params.dt))
+    w = np.asarray(params.weights)
+    cost = w[1] * np.mean(np.linalg.norm(traj[..., :2] - np.asarray(goal[:2]), axis=-1), axis=-1)
+    cost += w[2] * np.mean(np.abs(_wrap(traj[..., 2])), axis=-1)
+    du = np.diff(np.concatenate([np.zeros((64, 1, 3)), u], axis=1), axis=1)
+    cost += w[6] * np.mean(np.sum(du**2, axis=-1), axis=-1)
+    cells = np.asarray(grid.cost_at(jnp.asarray(traj[..., :2])))
+    cost += w[0] * np.mean(np.minimum(cells, 252) / 252, axis=-1) + np.where(np.any(cells >= 253, -1), 1000.0, 0.0)
+    best = int(np.argmin(cost))
+    np.testing.assert_allclose(np.asarray(out.trajectory), traj[best], atol=1e-4)
+    np.testing.assert_allclose(np.asarray(out.cmd), u[best, 0], atol=1e-5)
