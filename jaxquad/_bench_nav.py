@@ -169,8 +169,10 @@ def _grid_rows(args, occ, open_rc, batch: int) -> list[dict]:
 def run(args: argparse.Namespace) -> dict:
     import numpy as np
 
-    if args.nav_samples < 2 or args.nav_horizon < 1 or args.nav_grid < _LOCAL:
-        raise ValueError(f"--nav-samples >= 2, --nav-horizon >= 1 and --nav-grid >= {_LOCAL} are required")
+    if args.nav_samples < 2 or args.nav_horizon < 1 or args.nav_grid < _LOCAL or min(args.nav_plan_batch) < 1:
+        raise ValueError(
+            f"--nav-samples >= 2, --nav-horizon >= 1, --nav-grid >= {_LOCAL} and --nav-plan-batch >= 1 are required"
+        )
     occ = _occupancy(args.nav_grid)
     open_rc = np.argwhere(occ == 0)
     open_rc = open_rc[(open_rc.min(axis=1) > 10) & (open_rc.max(axis=1) < args.nav_grid - 10)]
