@@ -6,7 +6,9 @@ cells to --nav-grid cells square. MPPI scores --nav-samples sequences of --nav-h
 100 x 100 costmap window (5 m, as Nav2's rolling local costmap) with a 160-point path; robots start at
 random open cells. The planner row is one cost-to-go from a goal plus the path descent, with the start
 and goal about the map's width apart (its time grows with the number of steps on the longest shortest
-path). The frontier row treats everything farther than 5 m from the robot as unknown.
+path). The frontier rows treat everything farther than 5 m from the robot as unknown: extraction
+(frontier cells, 8-connected clusters, sizes and centroids) alone, then the whole choice including
+the robot's cost-to-go.
 """
 
 from __future__ import annotations
@@ -117,7 +119,7 @@ def _grid_rows(args, occ, open_rc, batch: int) -> list[dict]:
 
     from jaxquad import nav
     from jaxquad.bench import time_jitted
-    from jaxquad.kernels.frontiers import FrontierParams, choose_frontier
+    from jaxquad.kernels.frontiers import FrontierParams, choose_frontier, cluster_stats, frontier_mask, label_clusters
     from jaxquad.kernels.planner import cost_to_go, step_weights
 
     side = occ.shape[0]
@@ -158,6 +160,12 @@ def _grid_rows(args, occ, open_rc, batch: int) -> list[dict]:
         value = cost_to_go(w, jnp.zeros(w.shape, bool).at[s[0], s[1]].set(True))
         return choose_frontier(g, _RES, value, jnp.zeros(g.shape, bool), fparams)
 
+    def clusters(g):
+        mask = frontier_mask(g, fparams.free_thresh)
+        return cluster_stats(mask, label_clusters(mask))
+
+    timing = time_jitted(jax.jit(jax.vmap(clusters)), partial, repeats=_repeats(args))
+    rows.append(_row("frontier_clusters", batch, *timing, grid=f"{side}x{side}"))
     choose = jax.jit(jax.vmap(explore_choice))
     f_args = (partial, jnp.asarray(start, jnp.int32))
     timing = time_jitted(choose, *f_args, repeats=_repeats(args))
