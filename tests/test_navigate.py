@@ -89,11 +89,6 @@ def test_bench_section_json(capsys):
     ]
     assert main(argv) == 0
     rows = json.loads(capsys.readouterr().out)["sections"]["nav"]["rows"]
-    assert [r["kernel"] for r in rows] == [
-        "mppi_step",
-        "costmap",
-        "plan",
-        "frontier_choice",
-    ]
+    assert [r["kernel"] for r in rows] == ["mppi_step", "costmap", "plan", "frontier_clusters", "frontier_choice"]
     assert all(r["run_ms"] > 0 and r["batch"] == 2 for r in rows)
     assert rows[2]["ok"] == 2
