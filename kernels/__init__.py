@@ -3,3 +3,7 @@ from jaxquad.kernels.contact import ContactEstimate, ContactObserver, ObserverPa
 from jaxquad.kernels.raycast import Boxes, cast_depth, pinhole_rays, ray_distance
 from jaxquad.kernels.scan import CameraIntrinsics, Scan, baseline_scan, level_scan, stabilized_scan
 from jaxquad.kernels.twist import Twist, body_twist
+from jaxquad.kernels.costmap import CostGrid, CostmapParams, costmap_from_occupancy, distance_transform, inflation_cost
+from jaxquad.kernels.frontiers import FrontierChoice, FrontierParams, choose_frontier, frontier_mask, label_clusters
+from jaxquad.kernels.mppi import MppiInputs, MppiOutput, MppiParams, MppiState
+from jaxquad.kernels.planner import cost_to_go, descend, nearest_open_cell, step_weights

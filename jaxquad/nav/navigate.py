@@ -1,0 +1,182 @@
+"""Point-to-point navigation for one robot: costmap, global plan, MPPI ticks.
+
+`plan` is the global planner (cost-to-go from the goal, descent from the robot); `step` is one control
+tick of MPPI along the current plan. Both are pure with static shapes, so a fleet calls them per robot
+under `vmap` from inside its `lax.scan`. Replanning is a separate call on purpose: under `vmap` a
+`lax.cond` runs both branches, so a fleet loop replans in an outer scan (every `replan_ticks` ticks)
+around an inner scan of control ticks, as `simulate_kinematic` does with the ideal kinematic model.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int, Key
+
+from jaxquad.kernels import mppi
+from jaxquad.kernels.costmap import CostGrid, CostmapParams, costmap_from_occupancy
+from jaxquad.kernels.planner import cost_to_go, descend, nearest_open_cell, step_weights
+
+
+class NavParams(eqx.Module):
+    costmap: CostmapParams
+    controller: mppi.MppiParams
+    cost_weight: Float[Array, ""]  # planner step weight = 1 + cost_weight * cost / 252
+    goal_tolerance: Float[Array, ""]  # m: a blocked goal (or start) moves to the nearest open cell this close
+    n_path_points: int = eqx.field(static=True)
+    path_stride: int = eqx.field(static=True)  # grid cells between two path points
+    replan_ticks: int = eqx.field(static=True)  # control ticks between two plans
+
+    @classmethod
+    def default(
+        cls,
+        n_samples: int = 1000,
+        horizon: int = 40,
+        n_path_points: int = 160,
+        path_stride: int = 4,
+        replan_ticks: int = 10,
+    ) -> NavParams:
+        # 0.5 m goal tolerance of the planner: NavFn's in the authors' configuration.
+        return cls(
+            costmap=CostmapParams.default(),
+            controller=mppi.MppiParams.default(n_samples=n_samples, horizon=horizon),
+            cost_weight=jnp.asarray(3.0, jnp.float32),
+            goal_tolerance=jnp.asarray(0.5, jnp.float32),
+            n_path_points=n_path_points,
+            path_stride=path_stride,
+            replan_ticks=replan_ticks,
+        )
+
+
+class Plan(eqx.Module):
+    path: Float[Array, "P 2"]  # world x, y (m) from the robot towards the goal
+    valid: Bool[Array, " P"]
+    ok: Bool[Array, ""]  # start and goal found open and connected, path within n_path_points
+    goal_rc: Int[Array, " 2"]  # the goal cell the plan leads to
+
+
+class NavState(eqx.Module):
+    controller: mppi.MppiState
+    plan: Plan
+
+
+class NavInputs(eqx.Module):
+    pose: Float[Array, " 3"]  # estimated x, y (m), yaw (rad)
+    goal: Float[Array, " 3"]
+    grid: CostGrid
+    key: Key[Array, ""]
+
+
+def cost_grid(
+    params: NavParams,
+    occupancy: Int[Array, "H W"],
+    origin: Float[Array, " 2"],
+    resolution: float | Float[Array, ""],
+) -> CostGrid:
+    """The inflated cost grid of an occupancy grid (-1 unknown, 0..100) placed at `origin` (lower-left corner)."""
+    cost = costmap_from_occupancy(occupancy, resolution, params.costmap)
+    return CostGrid(
+        cost=cost,
+        origin=jnp.asarray(origin, jnp.float32),
+        resolution=jnp.asarray(resolution, jnp.float32),
+    )
+
+
+def plan(
+    params: NavParams,
+    grid: CostGrid,
+    pose: Float[Array, " 3"],
+    goal: Float[Array, " 3"],
+) -> Plan:
+    """Global path from the robot's cell to the goal's cell on the 8-connected weighted grid."""
+    weight = step_weights(grid.cost, params.cost_weight)
+    tol_cells = params.goal_tolerance / grid.resolution
+    goal_rc, goal_ok = nearest_open_cell(weight, grid.cell_of(goal[:2]), tol_cells)
+    start_rc, start_ok = nearest_open_cell(weight, grid.cell_of(pose[:2]), tol_cells)
+    source = jnp.zeros(weight.shape, bool).at[goal_rc[0], goal_rc[1]].set(goal_ok)
+    value = cost_to_go(weight, source)
+    cells, valid, complete = descend(value, weight, start_rc, params.n_path_points, params.path_stride)
+    ok = goal_ok & start_ok & complete
+    finite = jnp.all(jnp.isfinite(pose)) & jnp.all(jnp.isfinite(goal))
+    return Plan(
+        path=grid.center_of(cells),
+        valid=valid & finite,
+        ok=ok & finite,
+        goal_rc=goal_rc,
+    )
+
+
+def init(params: NavParams, pose: Float[Array, " 3"]) -> NavState:
+    n = params.n_path_points
+    empty = Plan(
+        path=jnp.zeros((n, 2), jnp.float32),
+        valid=jnp.zeros(n, bool),
+        ok=jnp.array(False),
+        goal_rc=jnp.zeros(2, jnp.int32),
+    )
+    return NavState(controller=mppi.init(params.controller, pose), plan=empty)
+
+
+def replan(params: NavParams, state: NavState, inputs: NavInputs) -> NavState:
+    return eqx.tree_at(lambda s: s.plan, state, plan(params, inputs.grid, inputs.pose, inputs.goal))
+
+
+def step(params: NavParams, state: NavState, inputs: NavInputs) -> tuple[NavState, mppi.MppiOutput]:
+    """One control tick along the current plan (without a valid plan, MPPI drives on the goal critics)."""
+    p = state.plan
+    path = jnp.where(p.ok, p.path, inputs.goal[:2])
+    valid = jnp.where(p.ok, p.valid, jnp.zeros_like(p.valid).at[0].set(True))
+    ctrl_in = mppi.MppiInputs(
+        pose=inputs.pose,
+        path=path,
+        path_valid=valid,
+        goal=inputs.goal,
+        grid=inputs.grid,
+        key=inputs.key,
+    )
+    ctrl, out = mppi.step(params.controller, state.controller, ctrl_in)
+    return NavState(controller=ctrl, plan=p), out
+
+
+class NavTrace(eqx.Module):
+    pose: Float[Array, "T 3"]  # after each tick
+    cmd: Float[Array, "T 3"]
+    arrived: Bool[Array, " T"]
+    recovering: Bool[Array, " T"]
+    plan_ok: Bool[Array, " T"]
+
+
+def simulate_kinematic(
+    params: NavParams,
+    grid: CostGrid,
+    start: Float[Array, " 3"],
+    goal: Float[Array, " 3"],
+    key: Key[Array, ""],
+    n_plans: int,
+) -> NavTrace:
+    """Closed loop in the ideal kinematic model (pose known, commands executed exactly).
+
+    n_plans planning periods of replan_ticks control ticks each."""
+    dt = params.controller.dt
+
+    def tick(carry, k):
+        pose, state = carry
+        state, out = step(params, state, NavInputs(pose=pose, goal=goal, grid=grid, key=k))
+        pose = mppi.rollout(pose, out.cmd[None], dt)[0]
+        return (pose, state), (
+            pose,
+            out.cmd,
+            out.arrived,
+            out.recovering,
+            state.plan.ok,
+        )
+
+    def period(carry, k):
+        pose, state = carry
+        state = replan(params, state, NavInputs(pose=pose, goal=goal, grid=grid, key=k))
+        return jax.lax.scan(tick, (pose, state), jax.random.split(k, params.replan_ticks))
+
+    carry = (jnp.asarray(start, jnp.float32), init(params, start))
+    _, trace = jax.lax.scan(period, carry, jax.random.split(key, n_plans))
+    return NavTrace(*(x.reshape(-1, *x.shape[2:]) for x in trace))

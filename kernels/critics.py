@@ -1,0 +1,71 @@
+"""MPPI critics: each a pure function of the sampled trajectories, returning one cost per sample (S,).
+
+As in Nav2's MPPI controller, the total cost is a weighted sum of small independent critics. The
+trajectories are the planar states after each model step, `traj` (S, T, 3) = x, y, theta (world
+frame), driven by the body-frame commands `u` (S, T, 3) = vx, vy, yaw rate. Near the goal
+(`near_goal`) the goal critics take over from the path critics.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxquad.kernels.costmap import INSCRIBED, CostGrid
+from jaxquad.kernels.lie import wrap_angle
+from jaxtyping import Array, Bool, Float
+
+
+def obstacle(traj: Float[Array, "S T 3"], grid: CostGrid, collision_cost: Float[Array, ""]) -> Float[Array, " S"]:
+    """Mean inflation cost (0..1 of 252) along the trajectory, plus `collision_cost` if it enters a cell at
+    inscribed cost or above (lethal, inscribed, unknown or off the map)."""
+    c = grid.cost_at(traj[..., :2])
+    hit = jnp.any(c >= INSCRIBED, axis=-1)
+    soft = jnp.mean(jnp.minimum(c, INSCRIBED - 1) / (INSCRIBED - 1), axis=-1)
+    return soft + jnp.where(hit, collision_cost, 0.0)
+
+
+def goal_distance(
+    traj: Float[Array, "S T 3"], goal: Float[Array, " 3"], near_goal: Bool[Array, ""]
+) -> Float[Array, " S"]:
+    """Mean distance (m) of the trajectory to the goal position, near the goal only."""
+    d = jnp.linalg.norm(traj[..., :2] - goal[:2], axis=-1)
+    return jnp.where(near_goal, jnp.mean(d, axis=-1), 0.0)
+
+
+def goal_heading(
+    traj: Float[Array, "S T 3"], goal: Float[Array, " 3"], near_goal: Bool[Array, ""]
+) -> Float[Array, " S"]:
+    """Mean absolute heading error (rad) to the goal's yaw, near the goal only."""
+    err = jnp.abs(wrap_angle(traj[..., 2] - goal[2]))
+    return jnp.where(near_goal, jnp.mean(err, axis=-1), 0.0)
+
+
+def path_follow(
+    traj: Float[Array, "S T 3"], carrot: Float[Array, " 2"], near_goal: Bool[Array, ""]
+) -> Float[Array, " S"]:
+    """Distance (m) from the trajectory's end to the path point a lookahead ahead of the robot."""
+    d = jnp.linalg.norm(traj[:, -1, :2] - carrot, axis=-1)
+    return jnp.where(near_goal, 0.0, d)
+
+
+def path_align(
+    traj: Float[Array, "S T 3"], window: Float[Array, "K 2"], near_goal: Bool[Array, ""]
+) -> Float[Array, " S"]:
+    """Mean distance (m) from each trajectory point to the nearest point of the local path window."""
+    d2 = jnp.sum((traj[:, :, None, :2] - window[None, None]) ** 2, axis=-1)  # (S, T, K)
+    return jnp.where(near_goal, 0.0, jnp.mean(jnp.sqrt(jnp.min(d2, axis=-1)), axis=-1))
+
+
+def path_heading(
+    traj: Float[Array, "S T 3"], carrot: Float[Array, " 2"], near_goal: Bool[Array, ""]
+) -> Float[Array, " S"]:
+    """Mean absolute angle (rad) between the heading and the direction to the carrot: walk forwards."""
+    delta = carrot - traj[..., :2]
+    far = jnp.sum(delta**2, axis=-1) > 0.01  # the direction is undefined on the carrot itself
+    err = jnp.abs(wrap_angle(jnp.arctan2(delta[..., 1], delta[..., 0]) - traj[..., 2]))
+    return jnp.where(near_goal, 0.0, jnp.mean(jnp.where(far, err, 0.0), axis=-1))
+
+
+def smoothness(u: Float[Array, "S T 3"], u_prev: Float[Array, " 3"]) -> Float[Array, " S"]:
+    """Mean squared change of the command between steps, the first against the last command sent."""
+    du = jnp.diff(jnp.concatenate([jnp.broadcast_to(u_prev, u[:, :1].shape), u], axis=1), axis=1)
+    return jnp.mean(jnp.sum(du**2, axis=-1), axis=-1)

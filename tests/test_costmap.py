@@ -1,0 +1,77 @@
+"""Costmap: exact distance transform against scipy, inflation against Nav2's formula written out per cell."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jaxquad.kernels.costmap import (
+    INSCRIBED,
+    LETHAL,
+    UNKNOWN,
+    CostmapParams,
+    costmap_from_occupancy,
+    distance_transform,
+)
+from scipy import ndimage
+
+_edt = jax.jit(distance_transform)
+_costmap = jax.jit(costmap_from_occupancy)
+
+
+@pytest.mark.parametrize(
+    "seed, shape, density",
+    [(0, (40, 40), 0.02), (1, (57, 83), 0.1), (2, (100, 64), 0.005)],
+)
+def test_distance_transform_matches_scipy(seed, shape, density):
+    rng = np.random.default_rng(seed)
+    obstacle = rng.random(shape) < density
+    obstacle[rng.integers(shape[0]), rng.integers(shape[1])] = True
+    expected = ndimage.distance_transform_edt(~obstacle)
+    np.testing.assert_allclose(np.asarray(_edt(jnp.asarray(obstacle))), expected, rtol=1e-6, atol=1e-5)
+
+
+def test_distance_transform_without_obstacles_is_large():
+    assert np.all(np.asarray(_edt(jnp.zeros((20, 30), bool))) >= 1e5)
+
+
+def _nav2_cost(d, p):
+    """Nav2 costmap_2d's computeCost, one cell at a time."""
+    if d == 0.0:
+        return LETHAL
+    if d <= p["inscribed"]:
+        return INSCRIBED
+    if d > p["inflation"]:
+        return 0.0
+    return (INSCRIBED - 1) * math.exp(-p["scale"] * (d - p["inscribed"]))
+
+
+def test_costmap_matches_loop_reference():
+    rng = np.random.default_rng(3)
+    res = 0.05
+    grid = np.zeros((48, 60), np.int8)
+    grid[rng.random(grid.shape) < 0.01] = 100
+    grid[10:14, 5:40] = 80
+    grid[30:, 45:] = -1
+    grid[rng.random(grid.shape) < 0.02] = 30  # below the occupied threshold: free
+    p = {"inscribed": 0.2, "inflation": 0.7, "scale": 3.0}
+    params = CostmapParams.default()
+    cost = np.asarray(_costmap(jnp.asarray(grid), res, params))
+    d = ndimage.distance_transform_edt(grid < 65) * res
+    for (r, c), v in np.ndenumerate(grid):
+        want = _nav2_cost(d[r, c], p)
+        if v < 0 and want < INSCRIBED:
+            want = UNKNOWN
+        assert cost[r, c] == pytest.approx(want, rel=1e-5, abs=1e-4), (r, c)
+
+
+def test_costmap_vmaps_over_robots_with_traced_params():
+    grid = np.zeros((40, 40), np.int8)
+    grid[20, 20] = 100
+    params = jax.tree.map(lambda x: jnp.stack([x, x]), CostmapParams.default())
+    params = params.__class__(**{**vars(params), "inflation_radius": jnp.array([0.3, 0.7])})
+    cost = jax.jit(jax.vmap(costmap_from_occupancy, in_axes=(None, None, 0)))(jnp.asarray(grid), 0.05, params)
+    # 0.5 m from the obstacle: beyond 0.3 m inflation, inside 0.7 m.
+    assert float(cost[0, 20, 30]) == 0.0
+    assert float(cost[1, 20, 30]) == pytest.approx(252 * math.exp(-3.0 * 0.3), rel=1e-5)

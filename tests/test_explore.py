@@ -1,0 +1,85 @@
+"""Exploration: blacklisting after the timeout, and a kinematic closed loop that maps a small two-room world."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxquad.kernels import mppi
+
+from jaxquad import nav
+
+RES = 0.05
+NAV = nav.NavParams.default(n_samples=128, horizon=25, n_path_points=48, path_stride=3, replan_ticks=10)
+EXP = nav.ExploreParams.default()
+SENSOR_RANGE = 1.5  # m: an ideal disk sensor (no occlusion) reveals the true map around the robot
+
+
+def _two_rooms():
+    """5 x 4 m, a wall with a 0.8 m door in the middle, one box in the right room."""
+    grid = np.zeros((80, 100), np.int8)
+    grid[[0, -1], :] = 100
+    grid[:, [0, -1]] = 100
+    grid[:, 49:51] = 100
+    grid[30:46, 49:51] = 0
+    grid[10:25, 70:80] = 100
+    return grid
+
+
+def _reveal(known, truth, pose):
+    h, w = truth.shape
+    rr, cc = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
+    d2 = ((cc + 0.5) * RES - pose[0]) ** 2 + ((rr + 0.5) * RES - pose[1]) ** 2
+    return jnp.where(d2 <= SENSOR_RANGE**2, truth, known)
+
+
+@jax.jit
+def _explore_loop(truth, start, key):
+    def period(carry, k):
+        pose, known, ex, st = carry
+        known = _reveal(known, truth, pose)
+        grid = nav.cost_grid(NAV, known, jnp.zeros(2), RES)
+        ex, _choice = nav.explore.update(EXP, ex, known, grid, pose, NAV.replan_ticks * NAV.controller.dt)
+        st = nav.replan(NAV, st, nav.NavInputs(pose=pose, goal=ex.goal, grid=grid, key=k))
+
+        def tick(c, kk):
+            p, s = c
+            s, out = nav.step(NAV, s, nav.NavInputs(pose=p, goal=ex.goal, grid=grid, key=kk))
+            cmd = jnp.where(ex.done, 0.0, out.cmd)
+            return (mppi.rollout(p, cmd[None], NAV.controller.dt)[0], s), p
+
+        (pose, st), poses = jax.lax.scan(tick, (pose, st), jax.random.split(k, NAV.replan_ticks))
+        return (pose, known, ex, st), (poses, ex.done, grid.cost_at(poses[:, :2]))
+
+    known0 = jnp.full(truth.shape, -1, jnp.int8)
+    carry = (start, known0, nav.explore.init(truth.shape), nav.init(NAV, start))
+    (_pose, known, _ex, _), (_poses, done, costs) = jax.lax.scan(period, carry, jax.random.split(key, 80))
+    return known, done, costs
+
+
+def test_explores_two_rooms():
+    truth = _two_rooms()
+    known, done, costs = _explore_loop(jnp.asarray(truth), jnp.array([0.8, 2.0, 0.0]), jax.random.key(0))
+    known, done = np.asarray(known), np.asarray(done)
+    free = truth == 0
+    coverage = np.mean(known[free] >= 0)
+    assert coverage > 0.9, coverage
+    assert done[-1]  # it knows it has finished
+    assert np.all(np.asarray(costs) < 253)  # never inside the inscribed radius of a known obstacle
+
+
+def test_goal_without_progress_is_blacklisted_after_timeout():
+    truth = _two_rooms()
+    known = np.where(np.arange(100)[None, :] < 25, truth, -1).astype(np.int8)  # left part known
+    known[38:42, 24:26] = 100  # splits the frontier line at column 25 into two clusters
+    grid = nav.cost_grid(NAV, jnp.asarray(known), jnp.zeros(2), RES)
+    pose = jnp.array([0.5, 2.0, 0.0])
+    update = jax.jit(nav.explore.update)
+    ex = nav.explore.init(known.shape)
+    goals = []
+    for _ in range(5):  # the robot never moves: 10 s per update
+        ex, choice = update(EXP, ex, jnp.asarray(known), grid, pose, 10.0)
+        assert bool(choice.found)
+        goals.append(np.asarray(ex.goal[:2]))
+    # Goal chosen at t = 0 s, no progress at 10, 20, 30 s; blacklisted at 40 s (> 30 s): a new goal.
+    assert all(np.allclose(g, goals[0]) for g in goals[:4])
+    assert np.linalg.norm(goals[4] - goals[0]) > 0.5
+    assert bool(np.asarray(ex.blacklist)[tuple(np.asarray(grid.cell_of(jnp.asarray(goals[0]))))])

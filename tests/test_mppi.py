@@ -1,0 +1,238 @@
+"""MPPI: the kinematic rollout against an Euler loop; closed loops in the kinematic model around an obstacle."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jaxquad.kernels import mppi
+from jaxquad.kernels.costmap import (
+    INSCRIBED,
+    CostGrid,
+    CostmapParams,
+    costmap_from_occupancy,
+)
+from jaxquad.kernels.planner import cost_to_go, descend, step_weights
+
+RES = 0.05
+PARAMS = mppi.MppiParams.default(n_samples=256, horizon=30)
+
+
+def _world():
+    """4 x 4 m room with walls, a 1 m block in the middle between start and goal."""
+    grid = np.zeros((80, 80), np.int8)
+    grid[[0, -1], :] = 100
+    grid[:, [0, -1]] = 100
+    grid[25:55, 35:45] = 100
+    cost = costmap_from_occupancy(jnp.asarray(grid), RES, CostmapParams.default())
+    return CostGrid(cost=cost, origin=jnp.zeros(2), resolution=jnp.asarray(RES))
+
+
+def _plan(grid: CostGrid, start, goal):
+    weight = step_weights(grid.cost, 3.0)
+    g = grid.cell_of(jnp.asarray(goal[:2]))
+    value = cost_to_go(weight, jnp.zeros(weight.shape, bool).at[g[0], g[1]].set(True))
+    cells, valid, complete = descend(value, weight, grid.cell_of(jnp.asarray(start[:2])), n_points=96, stride=2)
+    return grid.center_of(cells), valid, complete
+
+
+@jax.jit
+def _closed_loop(grid, start, goal, key):
+    path, valid, _ = _plan(grid, start, goal)
+
+    def tick(carry, k):
+        pose, state = carry
+        inputs = mppi.MppiInputs(pose=pose, path=path, path_valid=valid, goal=goal, grid=grid, key=k)
+        state, out = mppi.step(PARAMS, state, inputs)
+        pose = mppi.rollout(pose, out.cmd[None], PARAMS.dt)[0]
+        return (pose, state), (pose, out.arrived, out.cmd)
+
+    keys = jax.random.split(key, 300)
+    _, (poses, arrived, cmds) = jax.lax.scan(tick, (start, mppi.init(PARAMS, start)), keys)
+    return poses, arrived, cmds
+
+
+def test_rollout_matches_euler_loop():
+    rng = np.random.default_rng(0)
+    pose = np.array([0.3, -1.0, 2.5])
+    u = rng.normal(size=(20, 3))
+    got = np.asarray(
+        mppi.rollout(
+            jnp.asarray(pose, jnp.float32),
+            jnp.asarray(u, jnp.float32),
+            jnp.float32(0.1),
+        )
+    )
+    x, y, th = pose
+    for t in range(20):
+        vx, vy, wz = u[t]
+        x += (math.cos(th) * vx - math.sin(th) * vy) * 0.1
+        y += (math.sin(th) * vx + math.cos(th) * vy) * 0.1
+        th += wz * 0.1
+        np.testing.assert_allclose(got[t], [x, y, th], atol=1e-5)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_reaches_goal_around_obstacle_without_touching_it(seed):
+    grid = _world()
+    start = jnp.array([0.6, 2.0, 0.0])
+    goal = jnp.array([3.4, 2.1, math.pi / 2])
+    poses, arrived, cmds = _closed_loop(grid, start, goal, jax.random.key(seed))
+    poses, arrived, cmds = np.asarray(poses), np.asarray(arrived), np.asarray(cmds)
+    assert arrived.any(), poses[-1]
+    first = int(np.argmax(arrived))
+    assert np.linalg.norm(poses[first - 1, :2] - np.asarray(goal[:2])) < 0.25
+    assert abs((poses[first - 1, 2] - math.pi / 2 + math.pi) % (2 * math.pi) - math.pi) < 0.25
+    assert np.all(np.asarray(grid.cost_at(jnp.asarray(poses[:, :2]))) < INSCRIBED)
+    lo, hi = np.asarray(PARAMS.v_min), np.asarray(PARAMS.v_max)
+    assert np.all(cmds >= lo - 1e-6) and np.all(cmds <= hi + 1e-6)
+    assert np.all(cmds[first:] == 0.0)  # it stays put once there
+
+
+def _stuck_run(grid, pose, n):
+    params = mppi.MppiParams.default(n_samples=64, horizon=10, progress_timeout=1.0, recovery_time=0.5)
+    path = jnp.broadcast_to(jnp.array([3.4, 3.4]), (8, 2))
+    inputs = mppi.MppiInputs(
+        pose=pose,
+        path=path,
+        path_valid=jnp.ones(8, bool),
+        goal=jnp.array([3.4, 3.4, 0.0]),
+        grid=grid,
+        key=None,
+    )
+
+    def tick(state, k):  # the robot never moves, whatever it is told
+        state, out = mppi.step(params, state, _with_key(inputs, k))
+        return state, (out.recovering, out.cmd)
+
+    return jax.lax.scan(tick, mppi.init(params, pose), jax.random.split(jax.random.key(0), n))[1]
+
+
+def _with_key(inputs, k):
+    return mppi.MppiInputs(inputs.pose, inputs.path, inputs.path_valid, inputs.goal, inputs.grid, k)
+
+
+def test_stuck_robot_backs_up_or_turns():
+    grid = _world()
+    rec, cmd = jax.jit(_stuck_run, static_argnums=2)(grid, jnp.array([2.0, 0.6, 0.0]), 20)
+    rec, cmd = np.asarray(rec), np.asarray(cmd)
+    # No progress for 1 s (ten ticks of 0.1 s, to float rounding) -> 0.5 s of backing up, then MPPI again.
+    first = int(np.argmax(rec))
+    assert first in (9, 10) and rec[first : first + 5].all() and not rec[first + 5 :].any()
+    np.testing.assert_allclose(cmd[first : first + 5], np.tile([-0.1, 0.0, 0.0], (5, 1)), atol=1e-7)
+    # Facing away from a wall 0.2 m behind: no room to back up, so it turns in place.
+    rec, cmd = jax.jit(_stuck_run, static_argnums=2)(grid, jnp.array([0.25, 2.0, 0.0]), 13)
+    np.testing.assert_allclose(np.asarray(cmd)[11], [0.0, 0.0, 0.5], atol=1e-7)
+
+
+def test_non_finite_pose_gives_zero_command_and_flag():
+    grid = _world()
+    pose = jnp.array([jnp.nan, 2.0, 0.0])
+    path = jnp.zeros((8, 2))
+    inputs = mppi.MppiInputs(
+        pose,
+        path,
+        jnp.ones(8, bool),
+        jnp.array([3.0, 2.0, 0.0]),
+        grid,
+        jax.random.key(0),
+    )
+    params = mppi.MppiParams.default(n_samples=16, horizon=5)
+    _, out = jax.jit(mppi.step)(params, mppi.init(params, jnp.zeros(3)), inputs)
+    assert not bool(out.valid) and np.all(np.asarray(out.cmd) == 0.0)
+
+
+def test_step_vmaps_over_robots():
+    grid = _world()
+    params = mppi.MppiParams.default(n_samples=32, horizon=8)
+    poses = jnp.array([[0.6, 2.0, 0.0], [3.0, 3.0, 1.0], [1.0, 1.0, -1.0]])
+    path = jnp.broadcast_to(jnp.linspace(jnp.array([0.6, 0.6]), jnp.array([3.4, 3.4]), 20), (3, 20, 2))
+    inputs = mppi.MppiInputs(
+        poses,
+        path,
+        jnp.ones((3, 20), bool),
+        jnp.tile(jnp.array([3.4, 3.4, 0.0]), (3, 1)),
+        jax.tree.map(lambda x: jnp.stack([x] * 3), grid),
+        jax.random.split(jax.random.key(1), 3),
+    )
+    states = jax.vmap(mppi.init, in_axes=(None, 0))(params, poses)
+    _, out = jax.jit(jax.vmap(mppi.step, in_axes=(None, 0, 0)))(params, states, inputs)
+    for i in range(3):
+        one = jax.tree.map(lambda x, i=i: x[i], inputs)
+        _, ref = jax.jit(mppi.step)(params, mppi.init(params, poses[i]), one)
+        np.testing.assert_allclose(np.asarray(out.cmd[i]), np.asarray(ref.cmd), atol=1e-5)
+
+
+def _wrap(a):
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def test_critics_match_loop_references():
+    from jaxquad.kernels import critics
+
+    rng = np.random.default_rng(4)
+    grid = _world()
+    cost = np.asarray(grid.cost)
+    traj = np.c_[rng.uniform(-0.2, 4.2, (6 * 7, 2)), rng.uniform(-4, 4, 6 * 7)].reshape(6, 7, 3).astype(np.float32)
+    u = rng.normal(size=(6, 7, 3)).astype(np.float32)
+    u_prev = rng.normal(size=3).astype(np.float32)
+    goal = np.array([3.0, 1.0, 2.0], np.float32)
+    carrot = np.array([1.0, 3.5], np.float32)
+    window = rng.uniform(0, 4, (5, 2)).astype(np.float32)
+    yes, no = jnp.array(True), jnp.array(False)
+    got = {
+        "obstacle": critics.obstacle(jnp.asarray(traj), grid, jnp.float32(1000.0)),
+        "goal_distance": critics.goal_distance(jnp.asarray(traj), jnp.asarray(goal), yes),
+        "goal_heading": critics.goal_heading(jnp.asarray(traj), jnp.asarray(goal), yes),
+        "path_follow": critics.path_follow(jnp.asarray(traj), jnp.asarray(carrot), no),
+        "path_align": critics.path_align(jnp.asarray(traj), jnp.asarray(window), no),
+        "path_heading": critics.path_heading(jnp.asarray(traj), jnp.asarray(carrot), no),
+        "smoothness": critics.smoothness(jnp.asarray(u), jnp.asarray(u_prev)),
+    }
+    for s in range(6):
+        cells = []
+        for x, y, _ in traj[s]:
+            r, c = math.floor(y / RES), math.floor(x / RES)
+            cells.append(cost[r, c] if 0 <= r < 80 and 0 <= c < 80 else 254.0)
+        cells = np.array(cells)
+        want = {
+            "obstacle": np.mean(np.minimum(cells, 252) / 252) + (1000.0 if np.any(cells >= 253) else 0.0),
+            "goal_distance": np.mean([math.dist(p[:2], goal[:2]) for p in traj[s]]),
+            "goal_heading": np.mean([abs(_wrap(p[2] - goal[2])) for p in traj[s]]),
+            "path_follow": math.dist(traj[s, -1, :2], carrot),
+            "path_align": np.mean([min(math.dist(p[:2], q) for q in window) for p in traj[s]]),
+            "path_heading": np.mean(
+                [abs(_wrap(math.atan2(carrot[1] - p[1], carrot[0] - p[0]) - p[2])) for p in traj[s]]
+            ),
+            "smoothness": np.mean([np.sum((u[s, t] - (u[s, t - 1] if t else u_prev)) ** 2) for t in range(7)]),
+        }
+        for name, value in want.items():
+            assert float(got[name][s]) == pytest.approx(value, rel=1e-4, abs=1e-5), (name, s)
+    # The goal critics are off far from the goal, the path critics near it.
+    assert float(jnp.max(critics.goal_distance(jnp.asarray(traj), jnp.asarray(goal), no))) == 0.0
+    assert float(jnp.max(critics.path_align(jnp.asarray(traj), jnp.asarray(window), yes))) == 0.0
+
+
+def test_nominal_is_the_softmax_weighted_mean_of_the_samples():
+    """With one sample far better than the rest and a tiny temperature, the new nominal is that sample."""
+    grid = _world()
+    params = mppi.MppiParams.default(n_samples=64, horizon=10, temperature=1e-4)
+    pose = jnp.array([1.0, 1.0, 0.0])
+    goal = jnp.array([1.5, 1.0, 0.0])  # near: only the goal critics and the smoothness/obstacle ones act
+    inputs = mppi.MppiInputs(pose, jnp.broadcast_to(goal[:2], (8, 2)), jnp.ones(8, bool), goal, grid, jax.random.key(3))
+    state = mppi.init(params, pose)
+    _, out = jax.jit(mppi.step)(params, state, inputs)
+    # Reference: the samples as the controller draws them, scored by a NumPy sum of the same critics.
+    u = np.asarray(mppi._sample(params, state.nominal, inputs.key))
+    traj = np.asarray(mppi.rollout(pose, jnp.asarray(u), params.dt))
+    w = np.asarray(params.weights)
+    cost = w[1] * np.mean(np.linalg.norm(traj[..., :2] - np.asarray(goal[:2]), axis=-1), axis=-1)
+    cost += w[2] * np.mean(np.abs(_wrap(traj[..., 2])), axis=-1)
+    du = np.diff(np.concatenate([np.zeros((64, 1, 3)), u], axis=1), axis=1)
+    cost += w[6] * np.mean(np.sum(du**2, axis=-1), axis=-1)
+    cells = np.asarray(grid.cost_at(jnp.asarray(traj[..., :2])))
+    cost += w[0] * np.mean(np.minimum(cells, 252) / 252, axis=-1) + np.where(np.any(cells >= 253, -1), 1000.0, 0.0)
+    best = int(np.argmin(cost))
+    np.testing.assert_allclose(np.asarray(out.trajectory), traj[best], atol=1e-4)
+    np.testing.assert_allclose(np.asarray(out.cmd), u[best, 0], atol=1e-5)

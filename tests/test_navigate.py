@@ -1,0 +1,94 @@
+"""Navigation orchestration: plans on an occupancy map, and the kinematic closed loop with replanning."""
+
+import json
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxquad.kernels.costmap import INSCRIBED
+
+from jaxquad import nav
+from jaxquad.io.maps import OccupancyMap
+
+PARAMS = nav.NavParams.default(n_samples=256, horizon=30, n_path_points=64, path_stride=3, replan_ticks=10)
+
+
+def _room():
+    """5 x 5 m room, origin (-1, -1); an L-shaped wall between start and goal."""
+    grid = np.zeros((100, 100), np.int8)
+    grid[[0, -1], :] = 100
+    grid[:, [0, -1]] = 100
+    grid[20:80, 48:52] = 100
+    grid[76:80, 20:52] = 100
+    return OccupancyMap(grid, 0.05, (-1.0, -1.0, 0.0))
+
+
+def _grid(occ):
+    return nav.cost_grid(PARAMS, jnp.asarray(occ.grid), jnp.asarray(occ.origin[:2]), occ.resolution)
+
+
+_plan = jax.jit(nav.plan)
+_simulate = jax.jit(nav.simulate_kinematic, static_argnums=5)
+
+
+def test_plan_avoids_obstacles_and_snaps_blocked_goal():
+    occ = _room()
+    grid = _grid(occ)
+    pose = jnp.array([0.0, 2.0, 0.0])
+    p = _plan(PARAMS, grid, pose, jnp.array([3.0, 2.0, 0.0]))
+    path = np.asarray(p.path)[np.asarray(p.valid)]
+    assert bool(p.ok)
+    assert np.linalg.norm(path[0] - [0.0, 2.0]) < 0.05 and np.linalg.norm(path[-1] - [3.0, 2.0]) < 0.05
+    assert np.all(np.asarray(grid.cost_at(jnp.asarray(path))) < INSCRIBED)
+    assert path[:, 1].min() < 0.0  # around the bottom end of the wall (y from 0 to 3 m)
+    # A goal on the wall moves to the nearest open cell (within the 0.5 m planner tolerance).
+    p = _plan(PARAMS, grid, pose, jnp.array([1.5, 1.5, 0.0]))
+    assert bool(p.ok)
+    end = np.asarray(p.path)[np.asarray(p.valid)][-1]
+    assert 0.2 < np.linalg.norm(end - [1.5, 1.5]) <= 0.5
+    # A goal inside a closed box is not reachable.
+    occ.grid[5:30, 70:95] = 100
+    occ.grid[8:27, 73:92] = 0
+    p = _plan(PARAMS, _grid(occ), pose, jnp.array([3.2, 0.3, 0.0]))
+    assert not bool(p.ok) and not np.any(np.asarray(p.valid))
+
+
+def test_closed_loop_reaches_goal_behind_wall():
+    grid = _grid(_room())
+    start, goal = jnp.array([0.0, 2.0, 0.0]), jnp.array([3.0, 2.5, -math.pi / 2])
+    trace = _simulate(PARAMS, grid, start, goal, jax.random.key(0), 40)
+    arrived = np.asarray(trace.arrived)
+    assert arrived.any()
+    pose = np.asarray(trace.pose)
+    assert np.all(np.asarray(grid.cost_at(jnp.asarray(pose[:, :2]))) < INSCRIBED)
+    assert np.linalg.norm(pose[-1, :2] - np.asarray(goal[:2])) < 0.25
+    assert np.all(np.asarray(trace.plan_ok))
+
+
+def test_bench_section_json(capsys):
+    from jaxquad.cli import main
+
+    argv = [
+        "bench",
+        "--cpu",
+        "--json",
+        "--nav",
+        "--batch",
+        "2",
+        "--repeats",
+        "1",
+        "--nav-samples",
+        "8",
+        "--nav-horizon",
+        "4",
+        "--nav-grid",
+        "100",
+        "--nav-plan-batch",
+        "2",
+    ]
+    assert main(argv) == 0
+    rows = json.loads(capsys.readouterr().out)["sections"]["nav"]["rows"]
+    assert [r["kernel"] for r in rows] == ["mppi_step", "costmap", "plan", "frontier_clusters", "frontier_choice"]
+    assert all(r["run_ms"] > 0 and r["batch"] == 2 for r in rows)
+    assert rows[2]["ok"] == 2
