@@ -53,6 +53,13 @@ def _tune(log_path: Path, params_path: Path, grid_size: int) -> dict:
     return summary
 
 
+def _drift(robots: list[dict]) -> float:
+    from jaxquad.estimate.scores import fleet_mean
+
+    per_robot = [r["scores"] for r in robots]
+    return fleet_mean(per_robot, ("drift", "drift_pct", "mean"), ("drift", "drift_pct", "n_segments"))["mean"]
+
+
 def _mean(robots: list[dict], *path: str) -> float:
     vals = []
     for r in robots:
@@ -112,15 +119,16 @@ def main(argv: list[str] | None = None) -> int:
                 s = run_estimate(log_path, folder / f"estimate_{source}", contacts, params[source])
                 fallen = sum(r["fallen"] for r in s["robots"])
                 rows.append((robot, style, source + (f" ({note})" if source == "tuned" else ""),
-                             _mean(s["robots"], "contacts", "f1"), _mean(s["robots"], "drift", "horizontal_pct"),
-                             _mean(s["robots"], "drift", "3d_pct"), _mean(s["robots"], "trajectory", "ate", "rmse"),
+                             _mean(s["robots"], "contacts", "f1"), _drift(s["robots"]),
+                             _mean(s["robots"], "drift", "z_error_final_m"), _mean(s["robots"], "trajectory", "ate", "rmse"),
                              f"{len(s['robots'])} ({fallen})"))  # fmt: skip
             print(f"[{robot} {style}: {time.perf_counter() - t0:.0f} s]", file=sys.stderr, flush=True)
 
-    print("| robot | style | contacts | contact F1 | drift horiz. % | drift 3D % | ATE m | robots (fallen) |")
+    print("| robot | style | contacts | contact F1 | drift % (2-10 m segments) | z error at end m | ATE m | robots (fallen) |")
     print("|---|---|---|---:|---:|---:|---:|---:|")
-    for robot, style, source, f1, dh, d3, ate, n in rows:
-        print(f"| {robot} | {style} | {source} | {f1:.3f} | {dh:.1f} | {d3:.1f} | {ate:.3f} | {n} |")
+    for robot, style, source, f1, dh, dz, ate, n in rows:
+        print(f"| {robot} | {style} | {source} | {f1:.3f} | {dh:.1f} | {dz:+.2f} | {ate:.3f} | {n} |")
+    print("\nMeans over robots; drift weighted by each robot's segment count (jaxquad.metrics.segment_drift).")
     kept = f"outputs in {work}" if args.out else "outputs removed (use --out to keep them)"
     print(f"\nwall time {time.perf_counter() - t_start:.0f} s; {kept}")
     if not args.out:

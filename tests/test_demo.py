@@ -90,16 +90,27 @@ def test_frame_samples_latest_at_or_before():
 
 
 def test_mean_scores_and_table():
+    """Means say what they average: drift weighted by segments, delays pooled over matched events,
+    a robot with no matched event (NaN) left out instead of counting as 0 ms."""
+    delay = lambda mean, n: {"mean_ms": mean, "mean_abs_ms": abs(mean), "n_matched": n, "n_missed": 1}  # noqa: E731
     robots = [
-        {"scores": {"contacts": {"f1": 0.5, "precision": 1.0, "recall": 0.25}, "drift": {"horizontal_pct": 2.0, "3d_pct": 4.0},
+        {"scores": {"contacts": {"f1": 0.5, "precision": 1.0, "recall": 0.25},
+                    "drift": {"drift_pct": {"mean": 2.0, "n_segments": 30}, "z_error_final_m": -0.1},
+                    "delays": {"touchdown": delay(4.0, 3), "liftoff": delay(float("nan"), 0)},
                     "trajectory": {"ate": {"rmse": 0.1}, "rpe_2m": {"rmse": 0.3}}}},
-        {"scores": {"contacts": {"f1": 1.0, "precision": 0.5, "recall": 1.0}, "drift": {"horizontal_pct": 4.0, "3d_pct": 8.0}}},
+        {"scores": {"contacts": {"f1": 1.0, "precision": 0.5, "recall": 1.0},
+                    "drift": {"drift_pct": {"mean": 6.0, "n_segments": 10}, "z_error_final_m": -0.3},
+                    "delays": {"touchdown": delay(8.0, 1), "liftoff": delay(10.0, 2)}}},
     ]  # fmt: skip
     m = demo.mean_scores(robots)
-    assert m["contact F1"] == 0.75 and m["drift 3D %"] == 6.0 and m["ATE m"] == 0.1 and m["RPE m"] == 0.3
+    assert m["contact F1"]["value"] == 0.75 and m["contact F1"]["averages"] == "2 robots"
+    assert m["drift % (2-10 m)"]["value"] == (2.0 * 30 + 6.0 * 10) / 40
+    assert m["touchdown delay ms"]["value"] == (4.0 * 3 + 8.0) / 4 and "4 matched events" in m["touchdown delay ms"]["averages"]
+    assert m["lift-off delay ms"]["value"] == 10.0
+    assert m["ATE m"]["value"] == 0.1 and m["ATE m"]["averages"] == "1 robots"
     assert "force RMSE N" not in m
     text = demo.format_table({"a": m, "b": {}}, {"baseline": {"map_agreement_pct": 50.0, "no_reading_pct": 1.0}})
-    assert "0.750" in text and "6.0" in text and "50.0" in text
+    assert "0.750" in text and "3.0" in text and "50.0" in text
     assert text.splitlines()[1].split()[-1] == "-"
 
 

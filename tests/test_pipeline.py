@@ -179,7 +179,7 @@ def test_cli_end_to_end_on_a_written_log(robot, fixed_feet_log, tmp_path):
     s = summary["robots"][0]["scores"]
     assert s["contacts"]["f1"] == 1.0  # truth contacts against truth
     assert s["trajectory"]["ate"]["rmse"] < 3e-3
-    assert s["drift"]["3d_pct"] < 5.0
+    assert s["drift"]["endpoint_drift_3d_pct"] < 5.0
     traj = read_tum(tmp_path / "out" / "robot.tum")
     np.testing.assert_allclose(traj.p_world_body, fixed_feet_log["gt_pose"][:, :3], atol=3e-3)
     assert main(["estimate", str(log_path), "--out", str(tmp_path / "o2"), "--params", str(tmp_path / "none.yaml")]) == 1
@@ -201,7 +201,7 @@ def test_simulated_log_end_to_end(tmp_path):
     assert not robot["fallen"]
     assert robot["scores"]["contacts"]["f1"] == 1.0
     # Leg-inertial odometry on truth contacts: a few percent of the distance, far below dead reckoning.
-    assert robot["scores"]["drift"]["3d_pct"] < 30.0
+    assert robot["scores"]["drift"]["endpoint_drift_3d_pct"] < 30.0
     assert robot["scores"]["trajectory"]["ate"]["rmse"] < 0.1
 
 

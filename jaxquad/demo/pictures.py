@@ -27,9 +27,9 @@ def draw(folder: Path, log, runs: dict, sources: tuple[str, ...], scans: dict, m
     for i in range(n):
         parts = [f"robot {i}" + (" (fell)" if fallen[i] else "")]
         for s in sources:
-            d = _get(runs[s].summary["robots"][i]["scores"], ("drift", "horizontal_pct"))
-            if d is not None:
-                parts.append(f"{s}: drift {d:.1f}%")
+            d = _get(runs[s].summary["robots"][i]["scores"], ("drift", "drift_pct", "mean"))
+            if d is not None and np.isfinite(d):
+                parts.append(f"{s}: segment drift {d:.1f}%")
         titles.append(", ".join(parts))
     report.plot_trajectories(
         folder / "trajectories.png",

@@ -7,18 +7,21 @@ import platform
 
 import numpy as np
 
-# (label, path into a robot's scores, format) of the mean table.
+# (label, path into a robot's scores, format, weight path or None) of the mean table: every entry is
+# a mean over robots (weighted by the count at the weight path where there is one).
 _TABLE = (
-    ("contact F1", ("contacts", "f1"), "{:.3f}"),
-    ("precision", ("contacts", "precision"), "{:.3f}"),
-    ("recall", ("contacts", "recall"), "{:.3f}"),
-    ("touchdown delay ms", ("delays", "touchdown", "mean_ms"), "{:+.1f}"),
-    ("lift-off delay ms", ("delays", "liftoff", "mean_ms"), "{:+.1f}"),
-    ("force RMSE N", ("force", "rmse_n"), "{:.1f}"),
-    ("drift horiz. %", ("drift", "horizontal_pct"), "{:.1f}"),
-    ("drift 3D %", ("drift", "3d_pct"), "{:.1f}"),
-    ("ATE m", ("trajectory", "ate", "rmse"), "{:.3f}"),
+    ("contact F1", ("contacts", "f1"), "{:.3f}", None),
+    ("precision", ("contacts", "precision"), "{:.3f}", None),
+    ("recall", ("contacts", "recall"), "{:.3f}", None),
+    ("force RMSE N", ("force", "rmse_n"), "{:.1f}", None),
+    ("drift % (2-10 m)", ("drift", "drift_pct", "mean"), "{:.1f}", ("drift", "drift_pct", "n_segments")),
+    ("drift deg/m", ("drift", "drift_deg_per_m", "mean"), "{:.2f}", ("drift", "drift_deg_per_m", "n_segments")),
+    ("end-point drift %", ("drift", "endpoint_drift_horizontal_pct"), "{:.1f}", None),
+    ("z error at end m", ("drift", "z_error_final_m"), "{:+.2f}", None),
+    ("ATE m", ("trajectory", "ate", "rmse"), "{:.3f}", None),
+    ("RPE 2 m", ("trajectory", "rpe_2m", "rmse"), "{:.3f}", None),
 )
+_DELAYS = (("touchdown delay ms", "touchdown"), ("lift-off delay ms", "liftoff"))
 
 
 def _get(d: dict, path: tuple[str, ...]):
@@ -30,33 +33,45 @@ def _get(d: dict, path: tuple[str, ...]):
 
 
 def mean_scores(robots: list[dict]) -> dict:
-    """Mean over robots of every table entry and of the first RPE's RMSE (entries a robot lacks
-    are skipped; a key no robot has is absent)."""
+    """Per table label: {"value", "averages"}: the mean over robots (NaN-free robots only; drift
+    weighted by segments) or, for delays, over every matched event of every robot; `averages` says
+    over what. A label no robot has is absent."""
+    from jaxquad.estimate import scores
+
+    per_robot = [r["scores"] for r in robots]
     out = {}
-    for label, path, _ in _TABLE:
-        vals = [v for r in robots if (v := _get(r["scores"], path)) is not None]
-        if vals:
-            out[label] = float(np.mean(vals))
-    rpe = [(k, v["rmse"]) for r in robots for k, v in r["scores"].get("trajectory", {}).items() if k.startswith("rpe_")]
-    if rpe:
-        out["RPE m"] = float(np.mean([v for _, v in rpe]))
+    for label, path, _, weight in _TABLE:
+        m = scores.fleet_mean(per_robot, path, weight)
+        if m["n_robots"]:
+            what = f"{m['n_robots']} robots" + (f", {m['weight_sum']:.0f} segments" if weight else "")
+            out[label] = {"value": m["mean"], "averages": what}
+    delays = [r["delays"] for r in per_robot if "delays" in r]
+    if delays:
+        agg = scores.aggregate_delays(delays)
+        for label, kind in _DELAYS:
+            a = agg[kind]
+            out[label] = {"value": a["mean_ms"], "averages": f"{a['n_events']} matched events ({a['n_missed']} missed)"}
     return out
 
 
 def format_table(sources: dict[str, dict], scans: dict | None = None) -> str:
     """Plain-text table: one column per contact source, then the scan agreement lines."""
-    labels = [lab for lab, _, _ in _TABLE] + ["RPE m"]
-    fmt = {lab: f for lab, _, f in _TABLE} | {"RPE m": "{:.3f}"}
+    fmt = {lab: f for lab, _, f, _ in _TABLE} | {lab: "{:+.1f}" for lab, _ in _DELAYS}
+    labels = [lab for lab, _, _, _ in _TABLE[:3]] + [lab for lab, _ in _DELAYS] + [lab for lab, _, _, _ in _TABLE[3:]]
     names = list(sources)
-    lines = [f"{'':20s}" + "".join(f"{n:>12s}" for n in names)]
+    lines = [f"{'':20s}" + "".join(f"{n:>14s}" for n in names)]
     for lab in labels:
-        cells = [fmt[lab].format(sources[n][lab]) if lab in sources[n] else "-" for n in names]
-        lines.append(f"{lab:20s}" + "".join(f"{c:>12s}" for c in cells))
+        cells = []
+        for n in names:
+            v = sources[n].get(lab, {}).get("value")
+            cells.append("-" if v is None or not np.isfinite(v) else fmt[lab].format(v))
+        lines.append(f"{lab:20s}" + "".join(f"{c:>14s}" for c in cells))
+    lines.append("(means over robots; delays pooled over matched events; drift over 2, 5 and 10 m segments)")
     if scans:
         lines.append("")
-        lines.append(f"{'scan vs map':20s}" + "".join(f"{n:>12s}" for n in scans))
-        lines.append(f"{'rays on map %':20s}" + "".join(f"{s['map_agreement_pct']:>12.1f}" for s in scans.values()))
-        lines.append(f"{'no reading %':20s}" + "".join(f"{s['no_reading_pct']:>12.1f}" for s in scans.values()))
+        lines.append(f"{'scan vs true map':20s}" + "".join(f"{n:>14s}" for n in scans))
+        lines.append(f"{'end points on walls %':20s}" + "".join(f"{s['map_agreement_pct']:>14.1f}" for s in scans.values()))
+        lines.append(f"{'no reading %':20s}" + "".join(f"{s['no_reading_pct']:>14.1f}" for s in scans.values()))
     return "\n".join(lines)
 
 

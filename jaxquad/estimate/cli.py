@@ -25,6 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from jaxquad.estimate import scores
     from jaxquad.estimate.run import SUMMARY_KIND, run_estimate
     from jaxquad.io import check_output_dir, load_log, read_observer_params
     from jaxquad.io.jsonfile import to_json
@@ -51,10 +52,10 @@ def run(args: argparse.Namespace) -> int:
         bar.close()
     robots = summary["robots"]
     brief = {"robots": len(robots), "fallen": sum(r["fallen"] for r in robots), "out": str(args.out)}
-    for key, path in (("contact_f1", ("contacts", "f1")), ("drift_horizontal_pct", ("drift", "horizontal_pct"))):
-        vals = [r["scores"][path[0]][path[1]] for r in robots if path[0] in r["scores"]]
-        if vals:
-            brief[f"mean_{key}"] = sum(vals) / len(vals)
-            brief[f"mean_{key}_robots"] = len(vals)
+    per_robot = [r["scores"] for r in robots]
+    # Fleet means say what they average: robots (and, for drift, segments as weights).
+    brief["contact_f1"] = scores.fleet_mean(per_robot, ("contacts", "f1"))
+    brief["drift_pct"] = scores.fleet_mean(per_robot, ("drift", "drift_pct", "mean"), ("drift", "drift_pct", "n_segments"))
+    brief["z_error_final_m"] = scores.fleet_mean(per_robot, ("drift", "z_error_final_m"))
     print(to_json(brief))
     return 0

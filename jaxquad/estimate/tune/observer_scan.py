@@ -91,13 +91,13 @@ def fleet_scores(
     n, T, F = contact.shape
     c = scores.contact_scores(est.contact.reshape(n * T, F), contact.reshape(n * T, F), valid.reshape(n * T))
     out = {"f1": c["f1"], "precision": c["precision"], "recall": c["recall"]}
+    # Delays pooled over matched events (NaN when none matched: never a 0 from nothing).
+    agg = scores.aggregate_delays([scores.detection_delays(t, est.contact[i], contact[i], valid[i], max_delay_s)
+                                   for i in range(n)])  # fmt: skip
     for kind in ("touchdown", "liftoff"):
-        rows = [scores.detection_delays(t, est.contact[i], contact[i], valid[i], max_delay_s)[kind] for i in range(n)]
-        matched = sum(r["matched"] for r in rows)
-        out[f"{kind}_mean_ms"] = sum(r["mean_ms"] * r["matched"] for r in rows) / matched if matched else 0.0
-        out[f"{kind}_mean_abs_ms"] = sum(r["mean_abs_ms"] * r["matched"] for r in rows) / matched if matched else 0.0
-        out[f"{kind}_matched"] = matched
-        out[f"{kind}_missed"] = sum(r["missed"] for r in rows)
+        a = agg[kind]
+        out[f"{kind}_mean_ms"], out[f"{kind}_mean_abs_ms"] = a["mean_ms"], a["mean_abs_ms"]
+        out[f"{kind}_matched"], out[f"{kind}_missed"] = a["n_events"], a["n_missed"]
     out["force_rmse_n"] = scores.force_rmse(
         est.force_z_filtered.reshape(n * T, F), force_true.reshape(n * T, F), valid.reshape(n * T)
     )["rmse_n"]
@@ -110,5 +110,6 @@ def delay_cost(s: dict, max_delay_s: float = 0.1) -> float:
     for kind in ("touchdown", "liftoff"):
         matched, missed = s[f"{kind}_matched"], s[f"{kind}_missed"]
         events = matched + missed
-        cost += (s[f"{kind}_mean_abs_ms"] * matched + 1e3 * max_delay_s * missed) / events if events else 0.0
+        matched_ms = s[f"{kind}_mean_abs_ms"] * matched if matched else 0.0
+        cost += (matched_ms + 1e3 * max_delay_s * missed) / events if events else 0.0
     return cost
