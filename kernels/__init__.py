@@ -3,3 +3,10 @@ from jaxquad.kernels.contact import ContactEstimate, ContactObserver, ObserverPa
 from jaxquad.kernels.raycast import Boxes, cast_depth, pinhole_rays, ray_distance
 from jaxquad.kernels.scan import CameraIntrinsics, Scan, baseline_scan, level_scan, stabilized_scan
 from jaxquad.kernels.twist import Twist, body_twist
+from jaxquad.kernels.likelihood_field import (
+    LikelihoodField, distance_at, likelihood_field, sample_free_poses, scan_likelihood,
+)  # fmt: skip
+from jaxquad.kernels.particle_filter import (
+    AmclInputs, AmclOutput, AmclParams, AmclState, amcl_init, amcl_step, effective_sample_size, measurement_update,
+    omni_motion, pose_estimate, systematic_resample,
+)  # fmt: skip
