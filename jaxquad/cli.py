@@ -12,6 +12,7 @@ _COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("jaxquad.demo", "simulate a small fleet, estimate contacts and odometry, score, write a report folder"),
     "eval": ("jaxquad.metrics.cli", "ATE/ARE/APE/RPE of an estimated TUM trajectory against a reference, as evo"),
     "estimate": ("jaxquad.estimate.cli", "contacts and leg-inertial odometry over a robot log (TUM, npz, JSON summary)"),
+    "localize": ("jaxquad.localize.cli", "AMCL localization of a log's robots on a saved map (TUM, npz, JSON summary with errors)"),
     "tune": ("jaxquad.estimate.tune_cli", "tune the contact observer's gains and thresholds on a fleet log (grid search or gradient)"),
     "simulate": ("jaxquad.sim.cli", "run an MJX fleet of robots in generated worlds; write the fleet log, ground-truth TUM and maps"),
 }
