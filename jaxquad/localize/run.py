@@ -108,26 +108,20 @@ def _scores(t: np.ndarray, pose: np.ndarray, gt: np.ndarray, valid: np.ndarray, 
     return res
 
 
-def localize_log(
-    log: dict, occ, lp: LocalizeParams, initial: str | tuple[float, float, float] = "global",
-    contacts: str = "mixed", band_height: int = 5, progress=None,
-) -> list[dict]:  # fmt: skip
-    """Localize every robot of a loaded log on `occ` (an OccupancyMap). `initial`: "global", "gt"
-    (the log's ground truth at the first frame) or an (x, y, theta) pose. One dict per robot."""
+def log_inputs(log: dict, lp: LocalizeParams, contacts: str = "mixed", band_height: int = 5) -> dict:
+    """What the filter reads from a loaded log, per robot (leading axis N) at the F depth frames:
+    t (F,) s, odom (N, F, 3) leg-inertial odometry x y yaw, ranges (N, F, W) stabilized scan (m),
+    bearings (W,) rad, T_base_laser (3,), valid (N, F) and, with ground truth, gt (N, F, 3)."""
     from jaxquad.estimate.run import estimate_log
     from jaxquad.estimate.scans import log_scans
 
     if "depth" not in log:
         raise ValueError("the log has no depth images: localization needs its scans")
-    if initial == "gt" and "gt_pose" not in log:
-        raise ValueError("--initial-pose-gt needs a log with gt_pose")
-    field = field_of_map(occ, lp.laser_likelihood_max_dist)
     _, _, est = estimate_log(log, contacts)
     fleet = "fallen" in log
     t, depth_t = np.asarray(log["t"], np.float64), np.asarray(log["depth_t"], np.float64)
     k = np.clip(np.searchsorted(t, depth_t, side="right") - 1, 0, t.size - 1)
     n = est.p_world_base.shape[0]
-    odom = _pose2d(est.p_world_base[:, k], est.q_world_base[:, k])
     depth = np.asarray(log["depth"]) if fleet else np.asarray(log["depth"])[None]
     ranges, bearings = [], None
     for i in range(n):
@@ -135,30 +129,51 @@ def localize_log(
                        lp.laser_min_range, lp.laser_max_range)  # fmt: skip
         ranges.append(np.asarray(sc.ranges_stabilized))
         bearings = np.asarray(sc.bearings)
-    gt = None
+    T_base_camera = np.asarray(log["T_base_camera"])
+    out = {
+        "t": depth_t, "odom": _pose2d(est.p_world_base[:, k], est.q_world_base[:, k]), "ranges": np.stack(ranges),
+        "bearings": bearings,
+        # The scans are levelled along the base's heading: the laser sits at the camera's x y, yaw 0.
+        "T_base_laser": np.array([T_base_camera[0, 3], T_base_camera[1, 3], 0.0]),
+        "valid": np.asarray(log["valid"])[:, k] if "valid" in log else np.ones((n, k.size), bool),
+    }  # fmt: skip
     if "gt_pose" in log:
         g = np.asarray(log["gt_pose"]) if fleet else np.asarray(log["gt_pose"])[None]
-        gt = _pose2d(g[:, k, :3], g[:, k, 3:])
+        out["gt"] = _pose2d(g[:, k, :3], g[:, k, 3:])
+    return out
+
+
+def localize_log(
+    log: dict, occ, lp: LocalizeParams, initial: str | tuple[float, float, float] = "global",
+    contacts: str = "mixed", band_height: int = 5, progress=None,
+) -> list[dict]:  # fmt: skip
+    """Localize every robot of a loaded log on `occ` (an OccupancyMap). `initial`: "global", "gt"
+    (the log's ground truth at the first frame) or an (x, y, theta) pose. One dict per robot."""
+    if initial == "gt" and "gt_pose" not in log:
+        raise ValueError("--initial-pose-gt needs a log with gt_pose")
+    field = field_of_map(occ, lp.laser_likelihood_max_dist)
+    x = log_inputs(log, lp, contacts, band_height)
+    n = x["odom"].shape[0]
+    gt = x.get("gt")
     if initial == "global":
         init = None
     elif initial == "gt":
         init = gt[:, 0]
     else:
         init = np.broadcast_to(np.asarray(initial, np.float64), (n, 3))
-    T_base_camera = np.asarray(log["T_base_camera"])
-    # The scans are levelled along the base's heading: the laser sits at the camera's x y, yaw 0.
-    params = lp.amcl(T_base_laser=(float(T_base_camera[0, 3]), float(T_base_camera[1, 3]), 0.0))
-    out = localize_scans(params, field, odom, np.stack(ranges), bearings, lp.max_particles, init, lp.seed, progress)
-    valid = np.asarray(log["valid"])[:, k] if "valid" in log else np.ones((n, k.size), bool)
+    params = lp.amcl(T_base_laser=tuple(float(v) for v in x["T_base_laser"]))
+    out = localize_scans(params, field, x["odom"], x["ranges"], x["bearings"], lp.max_particles, init, lp.seed,
+                         progress)  # fmt: skip
+    fleet = "fallen" in log
     robots = []
     for i in range(n):
-        r = {"name": f"robot_{i:03d}" if fleet else "robot", "t": depth_t, "pose": out.pose[i], "cov": out.cov[i],
+        r = {"name": f"robot_{i:03d}" if fleet else "robot", "t": x["t"], "pose": out.pose[i], "cov": out.cov[i],
              "n_eff": out.n_eff[i], "updated": out.updated[i], "resampled": out.resampled[i],
              "p_random": out.p_random[i]}  # fmt: skip
         if gt is not None:
             r["gt_pose"] = gt[i]
             r["error_xy"] = np.hypot(*(out.pose[i, :, :2] - gt[i, :, :2]).T)
-            r["scores"] = _scores(depth_t, out.pose[i], gt[i], valid[i], initial == "global")
+            r["scores"] = _scores(x["t"], out.pose[i], gt[i], x["valid"][i], initial == "global")
         robots.append(r)
     return robots
 
@@ -198,4 +213,4 @@ def run_localize(
     return summary
 
 
-__all__ = ["CONVERGED_M", "field_of_map", "localize_log", "localize_scans", "run_localize"]
+__all__ = ["CONVERGED_M", "field_of_map", "localize_log", "log_inputs", "localize_scans", "run_localize"]
