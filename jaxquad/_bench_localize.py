@@ -15,7 +15,9 @@ import argparse
 def add_arguments(parser) -> None:
     parser.add_argument("--loc-robots", type=int, nargs="+", default=[1, 64], metavar="R",
                         help="robots per localization update (default: 1 64; 4096 on a GPU)")  # fmt: skip
-    parser.add_argument("--loc-particles", type=int, default=2000, metavar="P", help="particles per robot (default 2000)")
+    parser.add_argument(
+        "--loc-particles", type=int, default=2000, metavar="P", help="particles per robot (default 2000)"
+    )
     parser.add_argument("--loc-beams", type=int, default=60, metavar="B", help="beams per scan (default 60)")
 
 
@@ -65,7 +67,9 @@ def run(args: argparse.Namespace) -> dict:
     robots = getattr(args, "loc_robots", [1, 64])
     particles, beams = getattr(args, "loc_particles", 2000), getattr(args, "loc_beams", 60)
     if min(robots) < 1 or particles < 1 or beams < 1:
-        raise ValueError(f"--loc-robots, --loc-particles and --loc-beams must be >= 1, got {robots}, {particles}, {beams}")
+        raise ValueError(
+            f"--loc-robots, --loc-particles and --loc-beams must be >= 1, got {robots}, {particles}, {beams}"
+        )
     step = jax.jit(jax.vmap(amcl_step, in_axes=(None, None, 0, 0)))
     rows = []
     for r in robots:

@@ -56,11 +56,9 @@ def likelihood_field(
         raise ValueError("occupancy grid has no free cell to place particles in")
     rows, cols = np.nonzero(free)
     free_xy = np.stack([origin_xy[0] + (cols + 0.5) * resolution, origin_xy[1] + (rows + 0.5) * resolution], 1)
-    f32 = lambda a: jnp.asarray(a, jnp.float32)
-    return LikelihoodField(
-        dist=f32(np.minimum(dist, max_dist)), origin=f32(origin_xy), resolution=f32(resolution),
-        max_dist=f32(max_dist), free_xy=f32(free_xy),
-    )  # fmt: skip
+    leaves = {"dist": np.minimum(dist, max_dist), "origin": origin_xy, "resolution": resolution, "max_dist": max_dist,
+              "free_xy": free_xy}  # fmt: skip
+    return LikelihoodField(**{k: jnp.asarray(v, jnp.float32) for k, v in leaves.items()})
 
 
 def distance_at(field: LikelihoodField, xy: Float[Array, "*N 2"]) -> Float[Array, "*N"]:

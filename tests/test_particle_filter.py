@@ -9,7 +9,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import pytest
 
 from jaxquad.kernels import (
     AmclInputs, AmclParams, amcl_init, amcl_step, likelihood_field, measurement_update, omni_motion, pose_estimate,
@@ -113,8 +112,8 @@ def test_omni_motion_moments_match_closed_form():
     odom_old, odom_new = np.array([1.0, 2.0, 0.3]), np.array([1.3, 2.1, 0.5])
     pose0 = np.array([-2.0, 0.5, 2.0])  # particle heading differs from the odometry heading
     n = 200_000
-    out = jax.jit(omni_motion)(jax.random.PRNGKey(0), jnp.tile(jnp.asarray(pose0, jnp.float32), (n, 1)),
-                               jnp.asarray(odom_old, jnp.float32), jnp.asarray(odom_new, jnp.float32), alpha)  # fmt: skip
+    f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+    out = jax.jit(omni_motion)(jax.random.PRNGKey(0), jnp.tile(f32(pose0), (n, 1)), f32(odom_old), f32(odom_new), alpha)
     out = np.asarray(out, np.float64)
     # Closed form: a translation t along bearing b (relative to the particle's heading), strafe s across.
     d = odom_new - odom_old
@@ -164,8 +163,8 @@ def test_particle_filter_matches_kalman_filter():
         K = P @ np.linalg.inv(P + R_meas)
         mean, P = mean + K @ (z - mean), (np.eye(2) - K) @ P
         new = odom + np.array([d[0], d[1], 0.0])
-        state = pf_step(state, jnp.asarray(odom, jnp.float32), jnp.asarray(new, jnp.float32), jnp.asarray(z, jnp.float32),
-                        jax.random.PRNGKey(10 + k))  # fmt: skip
+        f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+        state = pf_step(state, f32(odom), f32(new), f32(z), jax.random.PRNGKey(10 + k))
         odom = new
     est, cov = pose_estimate(state.poses, state.log_w, state.mask)
     np.testing.assert_allclose(np.asarray(est[:2]), mean, atol=0.015)

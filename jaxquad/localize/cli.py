@@ -14,18 +14,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map", required=True, help="occupancy map YAML (PGM + YAML, map_server format, yaw 0)")
     parser.add_argument("--out", required=True, help="output folder (replaced whole when the run succeeds)")
     start = parser.add_mutually_exclusive_group(required=True)
-    start.add_argument("--initial-pose", type=float, nargs=3, metavar=("X", "Y", "THETA"),
-                       help="known start pose in the map, m m rad (particles spread by initial_std_xy/yaw)")
-    start.add_argument("--initial-pose-gt", action="store_true",
-                       help="start at the log's ground-truth pose of the first depth frame (simulated logs)")
-    start.add_argument("--global", dest="global_", action="store_true",
-                       help="unknown start: particles uniform over the map's free cells")
-    parser.add_argument("--particles", type=int, default=None,
-                        help="particles per robot (default: max_particles of the params file, 2000)")
-    parser.add_argument("--params", default=None,
-                        help="AMCL parameters (YAML; any subset of jaxquad/localize/amcl.yaml; default: that file)")
-    parser.add_argument("--contacts", choices=("observer", "mixed", "sensor", "truth"), default="mixed",
-                        help="contact source of the leg-inertial odometry (default: mixed)")
+    start.add_argument(
+        "--initial-pose",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "THETA"),
+        help="known start pose in the map, m m rad (particles spread by initial_std_xy/yaw)",
+    )
+    start.add_argument(
+        "--initial-pose-gt",
+        action="store_true",
+        help="start at the log's ground-truth pose of the first depth frame (simulated logs)",
+    )
+    start.add_argument(
+        "--global",
+        dest="global_",
+        action="store_true",
+        help="unknown start: particles uniform over the map's free cells",
+    )
+    parser.add_argument(
+        "--particles",
+        type=int,
+        default=None,
+        help="particles per robot (default: max_particles of the params file, 2000)",
+    )
+    parser.add_argument(
+        "--params",
+        default=None,
+        help="AMCL parameters (YAML; any subset of jaxquad/localize/amcl.yaml; default: that file)",
+    )
+    parser.add_argument(
+        "--contacts",
+        choices=("observer", "mixed", "sensor", "truth"),
+        default="mixed",
+        help="contact source of the leg-inertial odometry (default: mixed)",
+    )
     parser.add_argument("--band-height", type=int, default=5, help="scan band height in px (default 5; 30 real robot)")
 
 

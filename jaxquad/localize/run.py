@@ -10,21 +10,21 @@ robots of a fleet. Output folder:
                   ground truth, gt_pose (F, 3) and error_xy (F,) m
   summary.json    the parameters used (and their file), and per robot: updates, final pose and
                   spread, and with ground truth the position error (median, p99, rmse, max, m),
-                  the heading error (median, rad) and, for global localization, the convergence time
+                  the heading error (median, rad), the error of the odometry alone started at the
+                  true first pose (median, p99, m) and, for global localization, the convergence time
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxquad.kernels import AmclInputs, AmclParams, LikelihoodField, amcl_init, amcl_step, likelihood_field
-from jaxquad.kernels.lie import yaw_of
+from jaxquad.kernels.lie import SE2, yaw_of
 from jaxquad.localize.params import DEFAULTS_FILE, LocalizeParams, load_params
 
 # Scans per jitted call: long enough to amortize dispatch, short enough for a live progress bar.
@@ -89,6 +89,13 @@ def localize_scans(
 
 def _pose2d(p: np.ndarray, q_wxyz: np.ndarray) -> np.ndarray:
     return np.concatenate([p[..., :2], np.asarray(yaw_of(jnp.asarray(q_wxyz)))[..., None]], -1)
+
+
+def _anchored(odom: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """Odometry poses (F, 3) moved rigidly so that the first one sits at `start` (x, y, yaw)."""
+    T = SE2.from_xy_theta(*jnp.asarray(start, jnp.float32)) @ SE2.from_xy_theta(*jnp.asarray(odom[0])).inverse()
+    P = T @ SE2.from_xy_theta(*jnp.asarray(odom, jnp.float32).T)
+    return np.column_stack([np.asarray(P.translation()), np.asarray(P.rotation().as_radians())])
 
 
 def _scores(t: np.ndarray, pose: np.ndarray, gt: np.ndarray, valid: np.ndarray, global_: bool) -> dict:
@@ -174,6 +181,10 @@ def localize_log(
             r["gt_pose"] = gt[i]
             r["error_xy"] = np.hypot(*(out.pose[i, :, :2] - gt[i, :, :2]).T)
             r["scores"] = _scores(x["t"], out.pose[i], gt[i], x["valid"][i], initial == "global")
+            # For comparison: the odometry alone, started at the true first pose.
+            e_odom = np.hypot(*(_anchored(x["odom"][i], gt[i, 0])[:, :2] - gt[i, :, :2]).T)[x["valid"][i]]
+            r["scores"]["odometry_error_median_m"] = float(np.median(e_odom))
+            r["scores"]["odometry_error_p99_m"] = float(np.percentile(e_odom, 99))
         robots.append(r)
     return robots
 
