@@ -19,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         nargs=3,
         metavar=("X", "Y", "THETA"),
-        help="known start pose in the map, m m rad (particles spread by initial_std_xy/yaw)",
+        help="known start pose in the map, m m rad, for every robot (spread by initial_std_xy/yaw)",
     )
     start.add_argument(
         "--initial-pose-gt",
@@ -49,6 +49,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="mixed",
         help="contact source of the leg-inertial odometry (default: mixed)",
     )
+    parser.add_argument(
+        "--observer-params",
+        default=None,
+        help="contact-observer parameters of the odometry (as `jaxquad estimate --params`; default: the paper's)",
+    )
     parser.add_argument("--band-height", type=int, default=5, help="scan band height in px (default 5; 30 real robot)")
 
 
@@ -72,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         summary = run_localize(args.log, args.map, args.out, initial, args.params, args.particles, args.contacts,
-                               args.band_height, progress)  # fmt: skip
+                               args.band_height, progress, args.observer_params)  # fmt: skip
     finally:
         bar.close()
     print(json.dumps({"params_file": summary["params_file"], "params": summary["params"]}, indent=2))

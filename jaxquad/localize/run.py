@@ -115,16 +115,23 @@ def _scores(t: np.ndarray, pose: np.ndarray, gt: np.ndarray, valid: np.ndarray, 
     return res
 
 
-def log_inputs(log: dict, lp: LocalizeParams, contacts: str = "mixed", band_height: int = 5) -> dict:
+def log_inputs(
+    log: dict, lp: LocalizeParams, contacts: str = "mixed", band_height: int = 5, observer_params=None
+) -> dict:
     """What the filter reads from a loaded log, per robot (leading axis N) at the F depth frames:
     t (F,) s, odom (N, F, 3) leg-inertial odometry x y yaw, ranges (N, F, W) stabilized scan (m),
-    bearings (W,) rad, T_base_laser (3,), valid (N, F) and, with ground truth, gt (N, F, 3)."""
+    bearings (W,) rad, T_base_laser (3,), valid (N, F) and, with ground truth, gt (N, F, 3).
+    `observer_params`: a contact-observer file for the odometry (as `jaxquad estimate --params`)."""
     from jaxquad.estimate.run import estimate_log
+    from jaxquad.estimate.run import load_params as load_observer_params
     from jaxquad.estimate.scans import log_scans
+    from jaxquad.robots import load
 
     if "depth" not in log:
         raise ValueError("the log has no depth images: localization needs its scans")
-    _, _, est = estimate_log(log, contacts)
+    robot = load(str(np.asarray(log["robot"])))
+    obs = load_observer_params(observer_params, len(robot.foot_names), contacts)
+    _, _, est = estimate_log(log, contacts, obs, robot)
     fleet = "fallen" in log
     t, depth_t = np.asarray(log["t"], np.float64), np.asarray(log["depth_t"], np.float64)
     k = np.clip(np.searchsorted(t, depth_t, side="right") - 1, 0, t.size - 1)
@@ -152,14 +159,14 @@ def log_inputs(log: dict, lp: LocalizeParams, contacts: str = "mixed", band_heig
 
 def localize_log(
     log: dict, occ, lp: LocalizeParams, initial: str | tuple[float, float, float] = "global",
-    contacts: str = "mixed", band_height: int = 5, progress=None,
+    contacts: str = "mixed", band_height: int = 5, progress=None, observer_params=None,
 ) -> list[dict]:  # fmt: skip
     """Localize every robot of a loaded log on `occ` (an OccupancyMap). `initial`: "global", "gt"
     (the log's ground truth at the first frame) or an (x, y, theta) pose. One dict per robot."""
     if initial == "gt" and "gt_pose" not in log:
         raise ValueError("--initial-pose-gt needs a log with gt_pose")
     field = field_of_map(occ, lp.laser_likelihood_max_dist)
-    x = log_inputs(log, lp, contacts, band_height)
+    x = log_inputs(log, lp, contacts, band_height, observer_params)
     n = x["odom"].shape[0]
     gt = x.get("gt")
     if initial == "global":
@@ -191,7 +198,7 @@ def localize_log(
 
 def run_localize(
     log_path, map_path, out_dir, initial="global", params_path=None, particles: int | None = None,
-    contacts: str = "mixed", band_height: int = 5, progress=None,
+    contacts: str = "mixed", band_height: int = 5, progress=None, observer_params=None,
 ) -> dict:  # fmt: skip
     """Localize the robots of the log at `log_path` on the map at `map_path`; write `out_dir`."""
     from jaxquad.io import TumTrajectory, load_log, load_map, write_tum
@@ -201,11 +208,12 @@ def run_localize(
     lp = load_params(params_path, max_particles=particles)
     occ = load_map(map_path)
     log = load_log(log_path)
-    robots = localize_log(log, occ, lp, initial, contacts, band_height, progress)
+    robots = localize_log(log, occ, lp, initial, contacts, band_height, progress, observer_params)
     summary = {
         "log": str(log_path), "map": str(map_path), "params_file": str(params_path or DEFAULTS_FILE),
         "params": dataclasses.asdict(lp), "initial": initial if isinstance(initial, str) else list(initial),
-        "contacts": contacts, "robots": [],
+        "contacts": contacts, "observer_params": None if observer_params is None else str(observer_params),
+        "robots": [],
     }  # fmt: skip
     with atomic_dir(out_dir) as tmp:
         for r in robots:
