@@ -108,3 +108,60 @@ def test_bench_section_runs():
     (row,) = res["rows"]
     assert row["robots"] == 2 and row["particles"] == 64 and row["beams"] == 8
     assert row["run_ms"] > 0 and row["beam_evals_per_s"] == pytest.approx(2 * 64 * 8 / (row["run_ms"] * 1e-3))
+
+
+@pytest.mark.slow
+def test_cli_end_to_end_on_a_log_with_depth(tmp_path):
+    """The fixed-feet log of test_pipeline with depth frames ray cast (kernels.raycast) in a walled
+    room: `jaxquad localize` writes its files and, started at the truth, stays at the truth."""
+    import json
+
+    import jax.numpy as jnp
+    import mujoco
+
+    from jaxquad.io import read_tum, save_log
+    from jaxquad.kernels import Boxes, cast_depth, pinhole_rays
+    from jaxquad.robots import load
+    from test_pipeline import fixed_feet_log as make_log
+
+    log = dict(make_log.__wrapped__(load("go2")))
+    # Room 6 m x 4 m around the origin, walls 0.2 m thick and 1 m high, and a block for asymmetry.
+    center = np.array([[0, 2.1, 0.5], [0, -2.1, 0.5], [3.1, 0, 0.5], [-3.1, 0, 0.5], [1.5, 1.0, 0.5]])
+    half = np.array([[3.2, 0.1, 0.5], [3.2, 0.1, 0.5], [0.1, 2.2, 0.5], [0.1, 2.2, 0.5], [0.3, 0.6, 0.5]])
+    boxes = Boxes(jnp.asarray(center, jnp.float32), jnp.asarray(half, jnp.float32), jnp.zeros(5))
+    K = np.array([[30.0, 0, 29.5], [0, 30.0, 19.5], [0, 0, 1]])
+    T_base_camera = np.eye(4)
+    T_base_camera[:3, :3] = [[0, 0, 1], [-1, 0, 0], [0, -1, 0]]  # optical frame looking along base x
+    T_base_camera[:3, 3] = [0.28, 0.0, 0.05]
+    rays = jnp.asarray(pinhole_rays(K, 40, 60))
+    frames = np.arange(5, log["t"].size, 20)
+    depth = []
+    for k in frames:
+        R = np.zeros(9)
+        mujoco.mju_quat2Mat(R, log["gt_pose"][k, 3:])
+        R_world_cam = R.reshape(3, 3) @ T_base_camera[:3, :3]
+        p_world_cam = log["gt_pose"][k, :3] + R.reshape(3, 3) @ T_base_camera[:3, 3]
+        # The floor plane at z = 10 m lies above the camera, so no ray hits it: walls and block only.
+        d = np.asarray(cast_depth(jnp.asarray(p_world_cam, jnp.float32), jnp.asarray(R_world_cam, jnp.float32), rays,
+                                  boxes, 10.0))  # fmt: skip
+        depth.append(np.where(np.isfinite(d), d, 0.0))
+    log.update(depth=np.stack(depth).astype(np.float32), depth_t=log["t"][frames], K=K, T_base_camera=T_base_camera)
+    log_path = save_log(tmp_path / "log.npz", log)
+    occ = OccupancyMap(np.zeros((100, 140), np.int8), 0.05, (-3.5, -2.5, 0.0))
+    xy = occ.cell_centers()
+    inside = np.any(np.all(np.abs(xy[..., None, :] - center[:, :2]) <= half[:, :2], -1), -1)
+    occ.grid[inside] = 100
+    save_map(tmp_path / "map.yaml", occ)
+    out = tmp_path / "out"
+    argv = ["localize", str(log_path), "--map", str(tmp_path / "map.yaml"), "--out", str(out), "--initial-pose-gt",
+            "--contacts", "truth", "--particles", "300"]  # fmt: skip
+    assert main(argv) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    (robot,) = summary["robots"]
+    assert robot["scans"] == frames.size and robot["updates"] >= 1
+    assert summary["params"]["max_particles"] == 300 and summary["params"]["sigma_hit"] == 0.2
+    assert robot["scores"]["position_error_median_m"] < 0.15
+    traj = read_tum(out / "robot.tum")
+    np.testing.assert_allclose(traj.t_s, log["t"][frames])
+    with np.load(out / "robot.npz") as z:
+        np.testing.assert_allclose(z["pose"][:, :2], traj.p_world_body[:, :2], atol=1e-6)
