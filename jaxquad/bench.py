@@ -24,6 +24,7 @@ _SECTIONS: dict[str, tuple[str, str]] = {
     "metrics": ("jaxquad._bench_metrics", "trajectory metrics"),
     "sim": ("jaxquad._bench_sim", "MJX simulation"),
     "nav": ("jaxquad._bench_nav", "navigation: MPPI tick, costmap, global planner, frontier choice"),
+    "localize": ("jaxquad._bench_localize", "AMCL update: R robots x P particles x B beams"),
 }
 
 

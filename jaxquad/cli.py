@@ -15,6 +15,7 @@ _COMMANDS: dict[str, tuple[str, str]] = {
     "tune": ("jaxquad.estimate.tune.cli", "tune the contact observer's gains and thresholds on a fleet log (grid search or gradient)"),
     "convert": ("jaxquad.ros.convert_cli", "a robot log (.npz) from a ROS 1 or ROS 2 bag and a topics file"),
     "export": ("jaxquad.ros.export_cli", "estimation, odometry, SLAM results (TUM, scans, maps) as a ROS bag for RViz/Foxglove"),
+    "localize": ("jaxquad.localize.cli", "AMCL localization of a log's robots on a saved map (TUM, npz, JSON summary with errors)"),
     "simulate": ("jaxquad.sim.cli", "run an MJX fleet of robots in generated worlds; write the fleet log, ground-truth TUM and maps"),
 }
 

@@ -1,4 +1,5 @@
-"""Pure jitted math for one robot: contact observer, leg twist, scan slicing. `vmap` at the call site."""
+"""Pure jitted math for one robot: contact observer, leg twist, scan slicing, AMCL particle filter. `vmap` at the
+call site."""
 from jaxquad.kernels.contact import ContactEstimate, ContactObserver, ObserverParams, ObserverState
 from jaxquad.kernels.raycast import Boxes, cast_depth, pinhole_rays, ray_distance
 from jaxquad.kernels.scan import CameraIntrinsics, Scan, baseline_scan, level_scan, stabilized_scan
@@ -7,3 +8,10 @@ from jaxquad.kernels.costmap import CostGrid, CostmapParams, costmap_from_occupa
 from jaxquad.kernels.frontiers import FrontierChoice, FrontierParams, choose_frontier, frontier_mask, label_clusters
 from jaxquad.kernels.mppi import MppiInputs, MppiOutput, MppiParams, MppiState
 from jaxquad.kernels.planner import cost_to_go, descend, nearest_open_cell, step_weights
+from jaxquad.kernels.likelihood_field import (
+    LikelihoodField, distance_at, likelihood_field, sample_free_poses, scan_likelihood,
+)  # fmt: skip
+from jaxquad.kernels.particle_filter import (
+    AmclInputs, AmclOutput, AmclParams, AmclState, amcl_init, amcl_step, effective_sample_size, measurement_update,
+    omni_motion, pose_estimate, systematic_resample,
+)  # fmt: skip
