@@ -16,7 +16,8 @@ scores at most the best, so the result attains the exhaustive maximum (ties may 
 different maximiser). A `lax.while_loop` does the rounds; usually one round is enough.
 
 Stage 2 (refinement): angles at `fine_angle_step_deg` within +-`angle_step_deg` of the stage-1
-angle, translations within +-`refine_cells`; the stage-1 pose is kept on ties.
+angle, translations within +-`refine_cells`; the pose returned is the mean of the poses that
+share the best refined score (Karto averages its ties too).
 
 Covariance (Karto-like, from the response distribution): responses on a lattice spanning the
 translation window around the refined pose at the refined angle, and over the refinement angles at
@@ -33,7 +34,14 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from jaxquad.kernels.scan_grid import GRID_MAX, LikelihoodGrid, MatchParams, MatchSpec, cell_of, scan_points
+from jaxquad.kernels.scan_grid import (
+    GRID_MAX,
+    LikelihoodGrid,
+    MatchParams,
+    MatchSpec,
+    cell_of,
+    scan_points,
+)
 
 
 class MatchResult(eqx.Module):
@@ -41,7 +49,9 @@ class MatchResult(eqx.Module):
     response: Float[Array, ""]  # refined response, [0, 1]
     coarse_response: Float[Array, ""]  # stage-1 (exact search) response, [0, 1]
     covariance: Float[Array, "3 3"]  # of (x, y, theta), m^2 and rad^2
-    score: Int[Array, ""]  # stage-1 integer score (the exhaustive maximum over the search grid)
+    score: Int[
+        Array, ""
+    ]  # stage-1 integer score (the exhaustive maximum over the search grid)
     n_valid: Int[Array, ""]  # beams that count in the response
     expanded: Int[Array, ""]  # coarse blocks scored on the fine grid
 
@@ -49,7 +59,9 @@ class MatchResult(eqx.Module):
 def search_angles(spec: MatchSpec, theta0: Float[Array, ""]) -> Float[Array, " a"]:
     """Stage-1 angles (rad): theta0 + i * angle_step for i in -n..n."""
     n = spec.n_angles // 2
-    return theta0 + jnp.deg2rad(spec.angle_step_deg) * jnp.arange(-n, n + 1, dtype=jnp.float32)
+    return theta0 + jnp.deg2rad(spec.angle_step_deg) * jnp.arange(
+        -n, n + 1, dtype=jnp.float32
+    )
 
 
 def scan_lookup(
@@ -85,16 +97,26 @@ def _scores(table: Array, flat: Array, shift: Array, inside: Array) -> Array:
 def _exact_search(spec, grid, flat, inside, exclude_rc, exclude_r2):
     """Stage 1: (score, angle index, row shift, col shift, blocks expanded) of the best pose among those
     not within sqrt(exclude_r2) cells of exclude_rc."""
-    W, s, nb, P, K = spec.window_cells, spec.block, spec.n_blocks, spec.padded, spec.candidates
+    W, s, nb, P, K = (
+        spec.window_cells,
+        spec.block,
+        spec.n_blocks,
+        spec.padded,
+        spec.candidates,
+    )
     A = flat.shape[0]
     start = -W + s * jnp.arange(nb)
     block_shift = (start[:, None] * P + start[None, :]).reshape(-1)  # (nb^2,)
-    bounds = _scores(grid.pooled, flat[:, None, :], block_shift[None, :], inside[:, None, :]).reshape(-1)
+    bounds = _scores(
+        grid.pooled, flat[:, None, :], block_shift[None, :], inside[:, None, :]
+    ).reshape(-1)
     n = A * nb * nb
     n_rounds = -(-n // K)
     order = jnp.argsort(-bounds)
     order = jnp.concatenate([order, jnp.zeros(n_rounds * K - n, order.dtype)])
-    sorted_bounds = jnp.concatenate([bounds[order[:n]], jnp.full(n_rounds * K - n, -1, bounds.dtype)])
+    sorted_bounds = jnp.concatenate(
+        [bounds[order[:n]], jnp.full(n_rounds * K - n, -1, bounds.dtype)]
+    )
     d = jnp.arange(s)
 
     def expand(state):
@@ -104,7 +126,12 @@ def _exact_search(spec, grid, flat, inside, exclude_rc, exclude_r2):
         a, b = cand // (nb * nb), cand % (nb * nb)
         kr = (start[b // nb][:, None] + d)[:, :, None]  # (K, s, 1)
         kc = (start[b % nb][:, None] + d)[:, None, :]  # (K, 1, s)
-        sc = _scores(grid.values, flat[a][:, None, None, :], kr * P + kc, inside[a][:, None, None, :])
+        sc = _scores(
+            grid.values,
+            flat[a][:, None, None, :],
+            kr * P + kc,
+            inside[a][:, None, None, :],
+        )
         far = (kr - exclude_rc[0]) ** 2 + (kc - exclude_rc[1]) ** 2 >= exclude_r2
         ok = live[:, None, None] & (kr <= W) & (kc <= W) & far
         sc = jnp.where(ok, sc, -1).reshape(-1)
@@ -112,21 +139,33 @@ def _exact_search(spec, grid, flat, inside, exclude_rc, exclude_r2):
         k, r, c = j // (s * s), (j // s) % s, j % s
         better = sc[j] > best
         pick = lambda new, old: jnp.where(better, new, old)  # noqa: E731
-        return i + 1, pick(sc[j], best), pick(a[k], best_a), pick(start[b[k] // nb] + r, best_r), pick(
-            start[b[k] % nb] + c, best_c
+        return (
+            i + 1,
+            pick(sc[j], best),
+            pick(a[k], best_a),
+            pick(start[b[k] // nb] + r, best_r),
+            pick(start[b[k] % nb] + c, best_c),
         )
 
     def more(state):
         i, best = state[0], state[1]
-        return (i < n_rounds) & (sorted_bounds[jnp.minimum(i * K, n_rounds * K - 1)] > best)
+        return (i < n_rounds) & (
+            sorted_bounds[jnp.minimum(i * K, n_rounds * K - 1)] > best
+        )
 
     zero = jnp.int32(0)
-    i, best, a, r, c = jax.lax.while_loop(more, expand, (zero, jnp.int32(-1), zero, zero, zero))
+    i, best, a, r, c = jax.lax.while_loop(
+        more, expand, (zero, jnp.int32(-1), zero, zero, zero)
+    )
     return best, a, r, c, jnp.minimum(i * K, n)
 
 
-def _weighted_moments(w: Array, x: Array) -> tuple[Array, Array]:
-    """Weighted mean and covariance of rows of x (n, d) with weights w (n,)."""
+def _response_moments(
+    resp: Array, best: Array, drop: Array, x: Array
+) -> tuple[Array, Array]:
+    """Weighted mean and covariance of rows of x (n, d): weight = response where within `drop` of the best,
+    else 0 (a floor of 1e-6 keeps an all-zero response, no information, as uniform weights)."""
+    w = jnp.where(resp >= best - drop, jnp.maximum(resp, 1e-6), 0.0)
     w = w / jnp.sum(w)
     mean = w @ x
     dx = x - mean
@@ -163,12 +202,16 @@ def match_scan(
 
     # Stage 2: fine angles around the stage-1 angle, +-refine_cells around its translation.
     J, R = spec.n_fine, spec.refine_cells
-    fine = angles[a] + jnp.deg2rad(spec.fine_angle_step_deg) * jnp.arange(-J, J + 1, dtype=jnp.float32)
+    fine = angles[a] + jnp.deg2rad(spec.fine_angle_step_deg) * jnp.arange(
+        -J, J + 1, dtype=jnp.float32
+    )
     rc_f, in_f = scan_lookup(spec, grid, prior_xy, fine, p_sensor, ok)
     flat_f = _flat(spec, rc_f, in_f)
     d = jnp.arange(-R, R + 1)
     shift = ((r0 + d)[:, None] * P + (c0 + d)[None, :]).reshape(-1)  # (n_shift,)
-    sc_f = _scores(grid.values, flat_f[:, None, :], shift[None, :], in_f[:, None, :])  # (2J+1, n_shift)
+    sc_f = _scores(
+        grid.values, flat_f[:, None, :], shift[None, :], in_f[:, None, :]
+    )  # (2J+1, n_shift)
     centre = J * sc_f.shape[1] + sc_f.shape[1] // 2
     j = jnp.argmax(sc_f.reshape(-1))
     j = jnp.where(sc_f.reshape(-1)[j] > sc_f.reshape(-1)[centre], j, centre)
@@ -182,16 +225,27 @@ def match_scan(
     lat = st * jnp.arange(-n, n + 1)
     lr, lc = jnp.meshgrid(lat, lat, indexing="ij")
     lat_shift = ((r1 + lr) * P + (c1 + lc)).reshape(-1)
-    resp_xy = _scores(grid.values, flat_f[ja][None, :], lat_shift, in_f[ja][None, :]) / denom
-    w_xy = jnp.where(resp_xy >= response - params.cov_response_drop, resp_xy, 0.0)
+    resp_xy = (
+        _scores(grid.values, flat_f[ja][None, :], lat_shift, in_f[ja][None, :]) / denom
+    )
     xy = jnp.stack([lc.reshape(-1), lr.reshape(-1)], -1).astype(jnp.float32) * res
-    _, cov_xy = _weighted_moments(w_xy, xy)
+    _, cov_xy = _response_moments(resp_xy, response, params.cov_response_drop, xy)
     cov_xy = cov_xy + jnp.eye(2) * (st * res) ** 2 / 12.0
     resp_t = sc_f[:, js] / denom
-    w_t = jnp.where(resp_t >= response - params.cov_response_drop, resp_t, 0.0)
-    _, var_t = _weighted_moments(w_t, fine[:, None] - theta)
+    _, var_t = _response_moments(
+        resp_t, response, params.cov_response_drop, fine[:, None] - theta
+    )
     var_t = var_t[0, 0] + jnp.deg2rad(spec.fine_angle_step_deg) ** 2 / 12.0
     cov = jnp.zeros((3, 3)).at[:2, :2].set(cov_xy).at[2, 2].set(var_t)
 
-    pose = jnp.stack([prior[0] + c1 * res, prior[1] + r1 * res, theta])
+    # The pose: the mean of the refinement poses that share the best score (as Karto averages its
+    # ties), which removes the bias of picking one corner of a plateau one cell or step wide.
+    tie = (sc_f == sc_f.reshape(-1)[j]).astype(jnp.float32)
+    tie = tie / jnp.sum(tie)
+    dd = d.astype(jnp.float32)
+    mean_r = r0 + jnp.sum(tie.sum(0).reshape(2 * R + 1, 2 * R + 1).sum(1) * dd)
+    mean_c = c0 + jnp.sum(tie.sum(0).reshape(2 * R + 1, 2 * R + 1).sum(0) * dd)
+    pose = jnp.stack(
+        [prior[0] + mean_c * res, prior[1] + mean_r * res, jnp.sum(tie.sum(1) * fine)]
+    )
     return MatchResult(pose, response, score / denom, cov, score, n_valid, expanded)
