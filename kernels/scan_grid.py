@@ -42,43 +42,25 @@ class MatchSpec(eqx.Module):
     """
 
     cells: int = eqx.field(static=True, default=1024)  # grid side, cells
-    resolution: float = eqx.field(
-        static=True, default=0.01
-    )  # m per cell = translation search step
-    window_cells: int = eqx.field(
-        static=True, default=50
-    )  # translation search +- this many cells
-    angle_window_deg: float = eqx.field(
-        static=True, default=20.0
-    )  # rotation search +- this, deg
-    angle_step_deg: float = eqx.field(
-        static=True, default=2.0
-    )  # exact (stage 1) rotation step, deg
-    fine_angle_step_deg: float = eqx.field(
-        static=True, default=0.2
-    )  # refinement step within +-angle_step
-    refine_cells: int = eqx.field(
-        static=True, default=1
-    )  # refinement translation +- cells
+    resolution: float = eqx.field(static=True, default=0.01)  # m per cell = translation search step
+    window_cells: int = eqx.field(static=True, default=50)  # translation search +- this many cells
+    angle_window_deg: float = eqx.field(static=True, default=20.0)  # rotation search +- this, deg
+    angle_step_deg: float = eqx.field(static=True, default=2.0)  # exact (stage 1) rotation step, deg
+    fine_angle_step_deg: float = eqx.field(static=True, default=0.2)  # refinement step within +-angle_step
+    refine_cells: int = eqx.field(static=True, default=1)  # refinement translation +- cells
     block: int = eqx.field(static=True, default=8)  # coarse-level block side, cells
-    candidates: int = eqx.field(
-        static=True, default=16
-    )  # coarse blocks expanded per round
-    smear_half_cells: int = eqx.field(
-        static=True, default=6
-    )  # smear kernel reach, cells (2 sigma)
-    cov_points: int = eqx.field(
-        static=True, default=10
-    )  # covariance lattice +- this many points per axis
+    candidates: int = eqx.field(static=True, default=16)  # coarse blocks expanded per round
+    smear_half_cells: int = eqx.field(static=True, default=6)  # smear kernel reach, cells (2 sigma)
+    cov_points: int = eqx.field(static=True, default=10)  # covariance lattice +- this many points per axis
 
     @property
     def n_angles(self) -> int:
-        return 2 * int(round(self.angle_window_deg / self.angle_step_deg)) + 1
+        return 2 * round(self.angle_window_deg / self.angle_step_deg) + 1
 
     @property
     def n_fine(self) -> int:
         """Refinement angles on each side of the stage-1 angle."""
-        return int(round(self.angle_step_deg / self.fine_angle_step_deg))
+        return round(self.angle_step_deg / self.fine_angle_step_deg)
 
     @property
     def n_blocks(self) -> int:
@@ -98,9 +80,7 @@ class MatchSpec(eqx.Module):
         return self.cells + 2 * self.margin
 
     @classmethod
-    def loop(
-        cls, cells: int = 320, resolution: float = 0.05, window_cells: int = 40, **kw
-    ) -> "MatchSpec":
+    def loop(cls, cells: int = 320, resolution: float = 0.05, window_cells: int = 40, **kw) -> "MatchSpec":
         """Loop-closure preset: a larger window at a coarser step (+-2 m at 0.05 m, 16 m of grid)."""
         return cls(
             cells=cells,
@@ -115,18 +95,10 @@ class MatchSpec(eqx.Module):
 class MatchParams(eqx.Module):
     """Tunable numbers of a match (traced leaves: sweeps never recompile)."""
 
-    smear_sigma: Float[Array, ""] = eqx.field(
-        default_factory=lambda: jnp.asarray(0.03)
-    )  # m
-    range_min: Float[Array, ""] = eqx.field(
-        default_factory=lambda: jnp.asarray(0.1)
-    )  # m; shorter: invalid
-    range_max: Float[Array, ""] = eqx.field(
-        default_factory=lambda: jnp.asarray(20.0)
-    )  # m; longer: invalid
-    cov_response_drop: Float[Array, ""] = eqx.field(
-        default_factory=lambda: jnp.asarray(0.1)
-    )  # response units
+    smear_sigma: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(0.03))  # m
+    range_min: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(0.1))  # m; shorter: invalid
+    range_max: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(20.0))  # m; longer: invalid
+    cov_response_drop: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(0.1))  # response units
 
 
 class LikelihoodGrid(eqx.Module):
@@ -142,12 +114,7 @@ def scan_points(
     valid: Bool[Array, " b"],
 ) -> tuple[Float[Array, "b 2"], Bool[Array, " b"]]:
     """End points in the sensor frame and their validity (finite, within [range_min, range_max])."""
-    ok = (
-        valid
-        & jnp.isfinite(ranges)
-        & (ranges >= params.range_min)
-        & (ranges <= params.range_max)
-    )
+    ok = valid & jnp.isfinite(ranges) & (ranges >= params.range_min) & (ranges <= params.range_max)
     r = jnp.where(ok, ranges, 0.0)
     return jnp.stack([r * jnp.cos(bearings), r * jnp.sin(bearings)], -1), ok
 
@@ -160,17 +127,13 @@ def world_points(
     valid: Bool[Array, "n b"],
 ) -> tuple[Float[Array, "nb 2"], Bool[Array, " nb"]]:
     """End points of n scans taken at sensor poses (x, y, theta, world), flattened, with validity."""
-    p_sensor, ok = jax.vmap(scan_points, in_axes=(None, 0, None, 0))(
-        params, ranges, bearings, valid
-    )
+    p_sensor, ok = jax.vmap(scan_points, in_axes=(None, 0, None, 0))(params, ranges, bearings, valid)
     T = jax.vmap(SE2.from_xy_theta)(poses[:, 0], poses[:, 1], poses[:, 2])
     p_world = jax.vmap(lambda T, p: jax.vmap(T.apply)(p))(T, p_sensor)
     return p_world.reshape(-1, 2), ok.reshape(-1)
 
 
-def cell_of(
-    spec: MatchSpec, center_xy: Float[Array, "2"], p: Float[Array, "*n 2"]
-) -> Array:
+def cell_of(spec: MatchSpec, center_xy: Float[Array, "2"], p: Float[Array, "*n 2"]) -> Array:
     """(row, col) int32 cells of world points in the unpadded grid centred on `center_xy` (may be outside)."""
     c = jnp.floor((p - center_xy) / spec.resolution).astype(jnp.int32) + spec.cells // 2
     return jnp.stack([c[..., 1], c[..., 0]], -1)
@@ -181,18 +144,14 @@ def _kernel(spec: MatchSpec, params: MatchParams) -> tuple[Array, Array]:
     h, b = spec.smear_half_cells, spec.block
     o = jnp.arange(-h, h + 1, dtype=jnp.float32) * spec.resolution
     d2 = o[:, None] ** 2 + o[None, :] ** 2
-    kernel = jnp.round(GRID_MAX * jnp.exp(-0.5 * d2 / params.smear_sigma**2)).astype(
-        jnp.uint8
-    )
+    kernel = jnp.round(GRID_MAX * jnp.exp(-0.5 * d2 / params.smear_sigma**2)).astype(jnp.uint8)
     # pooled[o] = max over d in [0, b)^2 of kernel[o + d]: the kernel seen through the coarse level.
     padded = jnp.pad(kernel, ((b - 1, 0), (b - 1, 0)))
     n = 2 * h + b
     pooled = jnp.zeros((n, n), jnp.uint8)
     for dr in range(b):
         for dc in range(b):
-            pooled = jnp.maximum(
-                pooled, jnp.pad(padded, ((0, b), (0, b)))[dr : dr + n, dc : dc + n]
-            )
+            pooled = jnp.maximum(pooled, jnp.pad(padded, ((0, b), (0, b)))[dr : dr + n, dc : dc + n])
     return kernel, pooled
 
 
@@ -205,11 +164,7 @@ def _splat(spec: MatchSpec, rc: Array, inside: Array, kernel: Array, lo: int) ->
     P = spec.padded
     flat = jnp.where(inside[:, None, None], rows * P + cols, P * P)
     vals = jnp.broadcast_to(kernel, flat.shape)
-    grid = (
-        jnp.zeros(P * P, jnp.uint8)
-        .at[flat.reshape(-1)]
-        .max(vals.reshape(-1), mode="drop")
-    )
+    grid = jnp.zeros(P * P, jnp.uint8).at[flat.reshape(-1)].max(vals.reshape(-1), mode="drop")
     return grid.reshape(P, P)
 
 

@@ -49,9 +49,7 @@ class MatchResult(eqx.Module):
     response: Float[Array, ""]  # refined response, [0, 1]
     coarse_response: Float[Array, ""]  # stage-1 (exact search) response, [0, 1]
     covariance: Float[Array, "3 3"]  # of (x, y, theta), m^2 and rad^2
-    score: Int[
-        Array, ""
-    ]  # stage-1 integer score (the exhaustive maximum over the search grid)
+    score: Int[Array, ""]  # stage-1 integer score (the exhaustive maximum over the search grid)
     n_valid: Int[Array, ""]  # beams that count in the response
     expanded: Int[Array, ""]  # coarse blocks scored on the fine grid
 
@@ -59,9 +57,7 @@ class MatchResult(eqx.Module):
 def search_angles(spec: MatchSpec, theta0: Float[Array, ""]) -> Float[Array, " a"]:
     """Stage-1 angles (rad): theta0 + i * angle_step for i in -n..n."""
     n = spec.n_angles // 2
-    return theta0 + jnp.deg2rad(spec.angle_step_deg) * jnp.arange(
-        -n, n + 1, dtype=jnp.float32
-    )
+    return theta0 + jnp.deg2rad(spec.angle_step_deg) * jnp.arange(-n, n + 1, dtype=jnp.float32)
 
 
 def scan_lookup(
@@ -107,16 +103,12 @@ def _exact_search(spec, grid, flat, inside, exclude_rc, exclude_r2):
     A = flat.shape[0]
     start = -W + s * jnp.arange(nb)
     block_shift = (start[:, None] * P + start[None, :]).reshape(-1)  # (nb^2,)
-    bounds = _scores(
-        grid.pooled, flat[:, None, :], block_shift[None, :], inside[:, None, :]
-    ).reshape(-1)
+    bounds = _scores(grid.pooled, flat[:, None, :], block_shift[None, :], inside[:, None, :]).reshape(-1)
     n = A * nb * nb
     n_rounds = -(-n // K)
     order = jnp.argsort(-bounds)
     order = jnp.concatenate([order, jnp.zeros(n_rounds * K - n, order.dtype)])
-    sorted_bounds = jnp.concatenate(
-        [bounds[order[:n]], jnp.full(n_rounds * K - n, -1, bounds.dtype)]
-    )
+    sorted_bounds = jnp.concatenate([bounds[order[:n]], jnp.full(n_rounds * K - n, -1, bounds.dtype)])
     d = jnp.arange(s)
 
     def expand(state):
@@ -138,7 +130,7 @@ def _exact_search(spec, grid, flat, inside, exclude_rc, exclude_r2):
         j = jnp.argmax(sc)
         k, r, c = j // (s * s), (j // s) % s, j % s
         better = sc[j] > best
-        pick = lambda new, old: jnp.where(better, new, old)  # noqa: E731
+        pick = lambda new, old: jnp.where(better, new, old)
         return (
             i + 1,
             pick(sc[j], best),
@@ -149,20 +141,14 @@ def _exact_search(spec, grid, flat, inside, exclude_rc, exclude_r2):
 
     def more(state):
         i, best = state[0], state[1]
-        return (i < n_rounds) & (
-            sorted_bounds[jnp.minimum(i * K, n_rounds * K - 1)] > best
-        )
+        return (i < n_rounds) & (sorted_bounds[jnp.minimum(i * K, n_rounds * K - 1)] > best)
 
     zero = jnp.int32(0)
-    i, best, a, r, c = jax.lax.while_loop(
-        more, expand, (zero, jnp.int32(-1), zero, zero, zero)
-    )
+    i, best, a, r, c = jax.lax.while_loop(more, expand, (zero, jnp.int32(-1), zero, zero, zero))
     return best, a, r, c, jnp.minimum(i * K, n)
 
 
-def _response_moments(
-    resp: Array, best: Array, drop: Array, x: Array
-) -> tuple[Array, Array]:
+def _response_moments(resp: Array, best: Array, drop: Array, x: Array) -> tuple[Array, Array]:
     """Weighted mean and covariance of rows of x (n, d): weight = response where within `drop` of the best,
     else 0 (a floor of 1e-6 keeps an all-zero response, no information, as uniform weights)."""
     w = jnp.where(resp >= best - drop, jnp.maximum(resp, 1e-6), 0.0)
@@ -202,16 +188,12 @@ def match_scan(
 
     # Stage 2: fine angles around the stage-1 angle, +-refine_cells around its translation.
     J, R = spec.n_fine, spec.refine_cells
-    fine = angles[a] + jnp.deg2rad(spec.fine_angle_step_deg) * jnp.arange(
-        -J, J + 1, dtype=jnp.float32
-    )
+    fine = angles[a] + jnp.deg2rad(spec.fine_angle_step_deg) * jnp.arange(-J, J + 1, dtype=jnp.float32)
     rc_f, in_f = scan_lookup(spec, grid, prior_xy, fine, p_sensor, ok)
     flat_f = _flat(spec, rc_f, in_f)
     d = jnp.arange(-R, R + 1)
     shift = ((r0 + d)[:, None] * P + (c0 + d)[None, :]).reshape(-1)  # (n_shift,)
-    sc_f = _scores(
-        grid.values, flat_f[:, None, :], shift[None, :], in_f[:, None, :]
-    )  # (2J+1, n_shift)
+    sc_f = _scores(grid.values, flat_f[:, None, :], shift[None, :], in_f[:, None, :])  # (2J+1, n_shift)
     centre = J * sc_f.shape[1] + sc_f.shape[1] // 2
     j = jnp.argmax(sc_f.reshape(-1))
     j = jnp.where(sc_f.reshape(-1)[j] > sc_f.reshape(-1)[centre], j, centre)
@@ -225,16 +207,12 @@ def match_scan(
     lat = st * jnp.arange(-n, n + 1)
     lr, lc = jnp.meshgrid(lat, lat, indexing="ij")
     lat_shift = ((r1 + lr) * P + (c1 + lc)).reshape(-1)
-    resp_xy = (
-        _scores(grid.values, flat_f[ja][None, :], lat_shift, in_f[ja][None, :]) / denom
-    )
+    resp_xy = _scores(grid.values, flat_f[ja][None, :], lat_shift, in_f[ja][None, :]) / denom
     xy = jnp.stack([lc.reshape(-1), lr.reshape(-1)], -1).astype(jnp.float32) * res
     _, cov_xy = _response_moments(resp_xy, response, params.cov_response_drop, xy)
     cov_xy = cov_xy + jnp.eye(2) * (st * res) ** 2 / 12.0
     resp_t = sc_f[:, js] / denom
-    _, var_t = _response_moments(
-        resp_t, response, params.cov_response_drop, fine[:, None] - theta
-    )
+    _, var_t = _response_moments(resp_t, response, params.cov_response_drop, fine[:, None] - theta)
     var_t = var_t[0, 0] + jnp.deg2rad(spec.fine_angle_step_deg) ** 2 / 12.0
     cov = jnp.zeros((3, 3)).at[:2, :2].set(cov_xy).at[2, 2].set(var_t)
 
@@ -245,7 +223,5 @@ def match_scan(
     dd = d.astype(jnp.float32)
     mean_r = r0 + jnp.sum(tie.sum(0).reshape(2 * R + 1, 2 * R + 1).sum(1) * dd)
     mean_c = c0 + jnp.sum(tie.sum(0).reshape(2 * R + 1, 2 * R + 1).sum(0) * dd)
-    pose = jnp.stack(
-        [prior[0] + mean_c * res, prior[1] + mean_r * res, jnp.sum(tie.sum(1) * fine)]
-    )
+    pose = jnp.stack([prior[0] + mean_c * res, prior[1] + mean_r * res, jnp.sum(tie.sum(1) * fine)])
     return MatchResult(pose, response, score / denom, cov, score, n_valid, expanded)

@@ -7,14 +7,10 @@ import numpy as np
 
 def box(x0: float, y0: float, x1: float, y1: float) -> np.ndarray:
     """The four sides of an axis-aligned rectangle as segments (4, 4): x0 y0 x1 y1."""
-    return np.array(
-        [[x0, y0, x1, y0], [x1, y0, x1, y1], [x1, y1, x0, y1], [x0, y1, x0, y0]], float
-    )
+    return np.array([[x0, y0, x1, y0], [x1, y0, x1, y1], [x1, y1, x0, y1], [x0, y1, x0, y0]], float)
 
 
-def cast(
-    segments: np.ndarray, pose: np.ndarray, bearings: np.ndarray, max_range: float
-) -> np.ndarray:
+def cast(segments: np.ndarray, pose: np.ndarray, bearings: np.ndarray, max_range: float) -> np.ndarray:
     """Ranges from sensor pose (x, y, theta) along bearings to the nearest segment; inf beyond max_range."""
     a = pose[2] + bearings
     d = np.stack([np.cos(a), np.sin(a)], -1)[:, None, :]  # (B, 1, 2)

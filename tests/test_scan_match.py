@@ -22,16 +22,12 @@ PARAMS = MatchParams()
 BEARINGS = np.linspace(-np.pi, np.pi, 360, endpoint=False)
 # One spec for most tests (each spec compiles once): +-0.2 m at 0.01 m, the default angles.
 SPEC = MatchSpec(cells=640, window_cells=20, block=4)
-ROOM = np.concatenate(
-    [box(-2.0, -1.5, 2.5, 1.8), box(0.5, 0.4, 1.1, 0.9), box(-1.4, -1.0, -1.0, 0.2)]
-)
+ROOM = np.concatenate([box(-2.0, -1.5, 2.5, 1.8), box(0.5, 0.4, 1.1, 0.9), box(-1.4, -1.0, -1.0, 0.2)])
 
 
 @functools.partial(jax.jit, static_argnums=0)
 def _grid(spec, center, poses, ranges, valid):
-    pts, mask = world_points(
-        PARAMS, poses, ranges, jnp.asarray(BEARINGS, jnp.float32), valid
-    )
+    pts, mask = world_points(PARAMS, poses, ranges, jnp.asarray(BEARINGS, jnp.float32), valid)
     return likelihood_grid(spec, PARAMS, center, pts, mask)
 
 
@@ -63,16 +59,12 @@ def _scan(pose, segments=ROOM, max_range=6.0):
 
 
 def test_grid_matches_numpy_smear_and_max_pool():
-    spec = MatchSpec(
-        cells=96, resolution=0.02, window_cells=6, block=4, smear_half_cells=3
-    )
+    spec = MatchSpec(cells=96, resolution=0.02, window_cells=6, block=4, smear_half_cells=3)
     rng = np.random.default_rng(0)
     center = np.array([0.3, -0.2])
     pts = center + rng.uniform(-1.1, 1.1, (40, 2))  # some fall outside the 1.92 m grid
     mask = rng.random(40) > 0.2
-    g = jax.jit(likelihood_grid, static_argnums=0)(
-        spec, PARAMS, _f32(center), _f32(pts), jnp.asarray(mask)
-    )
+    g = jax.jit(likelihood_grid, static_argnums=0)(spec, PARAMS, _f32(center), _f32(pts), jnp.asarray(mask))
     # NumPy loop: every kept point's cell, then the max of the rounded Gaussian over its square.
     m, h, res, sig = (
         spec.margin,
@@ -87,27 +79,15 @@ def test_grid_matches_numpy_smear_and_max_pool():
             continue
         for dr in range(-h, h + 1):
             for dc in range(-h, h + 1):
-                v = int(
-                    np.floor(
-                        100
-                        * np.exp(-((dr * res) ** 2 + (dc * res) ** 2) / (2 * sig**2))
-                        + 0.5
-                    )
-                )
-                ref[row + dr + m, col + dc + m] = max(
-                    ref[row + dr + m, col + dc + m], v
-                )
+                v = int(np.floor(100 * np.exp(-((dr * res) ** 2 + (dc * res) ** 2) / (2 * sig**2)) + 0.5))
+                ref[row + dr + m, col + dc + m] = max(ref[row + dr + m, col + dc + m], v)
     got = np.asarray(g.values, int)
     assert np.abs(got - ref).max() <= 1 and np.mean(got == ref) > 0.999
     assert ref.max() == 100
     b = spec.block
     pad = np.pad(got, ((0, b), (0, b)))
     pooled = np.max(
-        [
-            pad[i : i + spec.padded, j : j + spec.padded]
-            for i in range(b)
-            for j in range(b)
-        ],
+        [pad[i : i + spec.padded, j : j + spec.padded] for i in range(b) for j in range(b)],
         axis=0,
     )
     np.testing.assert_array_equal(np.asarray(g.pooled), pooled)
@@ -116,15 +96,11 @@ def test_grid_matches_numpy_smear_and_max_pool():
 def test_lookup_cells_match_numpy():
     spec = SPEC
     g = _reference(spec, (0.0, 0.0, 0.0))
-    r, b, v = _scan((0.2, -0.1, 0.3))
+    r, _, v = _scan((0.2, -0.1, 0.3))
     prior = np.array([0.05, 0.02, 0.25])
     angles = search_angles(spec, _f32(prior[2]))
-    np.testing.assert_allclose(
-        np.asarray(angles), prior[2] + np.deg2rad(np.arange(-20, 21, 2)), atol=1e-6
-    )
-    p = np.stack(
-        [np.asarray(r) * np.cos(BEARINGS), np.asarray(r) * np.sin(BEARINGS)], -1
-    )
+    np.testing.assert_allclose(np.asarray(angles), prior[2] + np.deg2rad(np.arange(-20, 21, 2)), atol=1e-6)
+    p = np.stack([np.asarray(r) * np.cos(BEARINGS), np.asarray(r) * np.sin(BEARINGS)], -1)
     rc, inside = scan_lookup(spec, g, _f32(prior[:2]), angles, _f32(p), v)
     a = np.asarray(angles, float)[:, None]
     world = np.stack(
@@ -134,9 +110,7 @@ def test_lookup_cells_match_numpy():
         ],
         -1,
     )
-    cells = (
-        world + prior[:2]
-    ) / spec.resolution + spec.cells // 2  # the grid is centred on (0, 0)
+    cells = (world + prior[:2]) / spec.resolution + spec.cells // 2  # the grid is centred on (0, 0)
     expect = np.floor(cells[..., ::-1]).astype(int)
     near_edge = np.abs(cells[..., ::-1] - np.round(cells[..., ::-1])) < 1e-3
     ok = (np.asarray(rc) == expect) | near_edge
@@ -159,38 +133,24 @@ def _exhaustive(spec, g, rc, inside):
 
 @pytest.mark.parametrize("seed,candidates", [(0, 16), (1, 1)])
 def test_multiresolution_equals_exhaustive(seed, candidates):
-    spec = (
-        SPEC
-        if candidates == 16
-        else MatchSpec(cells=640, window_cells=20, block=4, candidates=candidates)
-    )
+    spec = SPEC if candidates == 16 else MatchSpec(cells=640, window_cells=20, block=4, candidates=candidates)
     rng = np.random.default_rng(seed)
     g = _reference(spec, (0.0, 0.0, 0.0))
-    true = np.array(
-        [rng.uniform(-0.15, 0.15), rng.uniform(-0.15, 0.15), rng.uniform(-0.2, 0.2)]
-    )
+    true = np.array([rng.uniform(-0.15, 0.15), rng.uniform(-0.15, 0.15), rng.uniform(-0.2, 0.2)])
     r, b, v = _scan(true)
-    v = v & jnp.asarray(
-        rng.random(v.shape[0]) > 0.3
-    )  # drop beams so that the optimum is not obvious
+    v = v & jnp.asarray(rng.random(v.shape[0]) > 0.3)  # drop beams so that the optimum is not obvious
     prior = _f32(true + rng.uniform(-0.1, 0.1, 3))
     out = _match(spec, PARAMS, g, prior, r, b, v)
     p, ok = np.stack([r * np.cos(BEARINGS), r * np.sin(BEARINGS)], -1), np.asarray(v)
-    rc, inside = scan_lookup(
-        spec, g, prior[:2], search_angles(spec, prior[2]), _f32(p), jnp.asarray(ok)
-    )
+    rc, inside = scan_lookup(spec, g, prior[:2], search_angles(spec, prior[2]), _f32(p), jnp.asarray(ok))
     scores = _exhaustive(spec, g, rc, inside)
     assert int(out.score) == scores.max()
-    assert (
-        int(out.expanded) < scores.size // spec.block**2
-    )  # the bound prunes most blocks
+    assert int(out.expanded) < scores.size // spec.block**2  # the bound prunes most blocks
     # Excluding a disc around the optimum: the best score outside it, exhaustively.
     ex = np.asarray(out.pose[:2])
     exc = _match(spec, PARAMS, g, prior, r, b, v, _f32(ex), 0.1)
     k = np.arange(-20, 21) * spec.resolution
-    dy, dx = np.meshgrid(
-        k + float(prior[1]) - ex[1], k + float(prior[0]) - ex[0], indexing="ij"
-    )
+    dy, dx = np.meshgrid(k + float(prior[1]) - ex[1], k + float(prior[0]) - ex[0], indexing="ij")
     far = (dx**2 + dy**2) / spec.resolution**2 >= (0.1 / spec.resolution) ** 2 - 1e-3
     assert int(exc.score) == scores[:, far].max() < scores.max()
 
@@ -219,9 +179,7 @@ def test_recovers_known_transform_and_vmaps():
     assert np.all(np.asarray(out.response) >= np.asarray(out.coarse_response))
     assert np.all((np.asarray(out.response) > 0.5) & (np.asarray(out.response) <= 1.0))
     single = _match(spec, PARAMS, g, jnp.zeros(3), *scans[1])
-    np.testing.assert_allclose(
-        np.asarray(single.pose), np.asarray(out.pose[1]), atol=1e-6
-    )
+    np.testing.assert_allclose(np.asarray(single.pose), np.asarray(out.pose[1]), atol=1e-6)
     # A scan of the reference pose itself matches every beam at the cell it came from.
     own = _match(spec, PARAMS, g, _f32([0.02, -0.03, 0.0]), *_scan((0.0, 0.0, 0.0)))
     np.testing.assert_allclose(np.asarray(own.pose), 0.0, atol=1e-5)
@@ -234,15 +192,11 @@ def test_invalid_beams_ignored():
     r, b, v = _scan((0.1, 0.05, 0.1))
     bad = r.at[::3].set(jnp.nan).at[1::7].set(-1.0)
     out = _match(spec, PARAMS, g, jnp.zeros(3), bad, b, v)
-    clean = _match(
-        spec, PARAMS, g, jnp.zeros(3), r, b, v & jnp.isfinite(bad) & (bad > 0)
-    )
+    clean = _match(spec, PARAMS, g, jnp.zeros(3), r, b, v & jnp.isfinite(bad) & (bad > 0))
     assert int(out.n_valid) == int(clean.n_valid) < int(v.sum())
     np.testing.assert_array_equal(np.asarray(out.pose), np.asarray(clean.pose))
     none = _match(spec, PARAMS, g, jnp.zeros(3), r, b, jnp.zeros_like(v))
-    assert float(none.response) == 0.0 and np.all(
-        np.isfinite(np.asarray(none.covariance))
-    )
+    assert float(none.response) == 0.0 and np.all(np.isfinite(np.asarray(none.covariance)))
 
 
 def test_covariance_larger_along_corridor():
@@ -250,9 +204,7 @@ def test_covariance_larger_along_corridor():
     corridor = np.array([[-10.0, -0.8, 10.0, -0.8], [-10.0, 0.8, 10.0, 0.8]])
     spec = SPEC
     g = _reference(spec, (0.0, 0.0, 0.0), corridor, max_range=2.5)
-    out = _match(
-        spec, PARAMS, g, jnp.zeros(3), *_scan((0.1, 0.05, 0.0), corridor, max_range=2.5)
-    )
+    out = _match(spec, PARAMS, g, jnp.zeros(3), *_scan((0.1, 0.05, 0.0), corridor, max_range=2.5))
     cov = np.asarray(out.covariance)
     assert cov[0, 0] > 20 * cov[1, 1]
     assert abs(float(out.pose[1]) - 0.05) < 0.015
