@@ -139,31 +139,40 @@ def cell_of(spec: MatchSpec, center_xy: Float[Array, "2"], p: Float[Array, "*n 2
     return jnp.stack([c[..., 1], c[..., 0]], -1)
 
 
-def _kernel(spec: MatchSpec, params: MatchParams) -> tuple[Array, Array]:
-    """The smear kernel (2h+1)^2 and its block max-pool (2h+block)^2 (offsets -h-block+1..h), uint8."""
-    h, b = spec.smear_half_cells, spec.block
+def _kernel(spec: MatchSpec, params: MatchParams) -> Array:
+    """The smear kernel, (2h+1)^2 cells, uint8."""
+    h = spec.smear_half_cells
     o = jnp.arange(-h, h + 1, dtype=jnp.float32) * spec.resolution
     d2 = o[:, None] ** 2 + o[None, :] ** 2
-    kernel = jnp.round(GRID_MAX * jnp.exp(-0.5 * d2 / params.smear_sigma**2)).astype(jnp.uint8)
-    # pooled[o] = max over d in [0, b)^2 of kernel[o + d]: the kernel seen through the coarse level.
-    padded = jnp.pad(kernel, ((b - 1, 0), (b - 1, 0)))
-    n = 2 * h + b
-    pooled = jnp.zeros((n, n), jnp.uint8)
-    for dr in range(b):
-        for dc in range(b):
-            pooled = jnp.maximum(pooled, jnp.pad(padded, ((0, b), (0, b)))[dr : dr + n, dc : dc + n])
-    return kernel, pooled
+    return jnp.round(GRID_MAX * jnp.exp(-0.5 * d2 / params.smear_sigma**2)).astype(jnp.uint8)
 
 
-def _splat(spec: MatchSpec, rc: Array, inside: Array, kernel: Array, lo: int) -> Array:
-    """Padded grid of the max over points of `kernel` placed with its offset `lo` at each point's cell."""
+def _forward_max(x: Array, b: int) -> Array:
+    """y[i, j] = max of x over the b x b cells starting at (i, j), zero beyond the end. Per axis a window
+    of w cells grows to w + min(w, b - w) per pass (1, 2, 4, ..., b: ceil(log2 b) passes)."""
+    for axis in (0, 1):
+        w = 1
+        while w < b:
+            step = min(w, b - w)  # the last pass overlaps so that the window is exactly b
+            shifted = jnp.pad(
+                jax.lax.slice_in_dim(x, step, x.shape[axis], axis=axis),
+                [(0, step) if a == axis else (0, 0) for a in (0, 1)],
+            )
+            x = jnp.maximum(x, shifted)
+            w += step
+    return x
+
+
+def _splat(spec: MatchSpec, rc: Array, inside: Array, kernel: Array) -> Array:
+    """Padded grid of the max over points of `kernel` centred on each point's cell."""
     k = kernel.shape[0]
-    o = jnp.arange(k) + lo + spec.margin
+    o = jnp.arange(k) - k // 2 + spec.margin
     rows = rc[:, 0, None, None] + o[:, None]
     cols = rc[:, 1, None, None] + o[None, :]
     P = spec.padded
     flat = jnp.where(inside[:, None, None], rows * P + cols, P * P)
-    vals = jnp.broadcast_to(kernel, flat.shape)
+    # Materialize indices and values: fused into the scatter, XLA recomputes them per update.
+    flat, vals = jax.lax.optimization_barrier((flat, jnp.broadcast_to(kernel, flat.shape)))
     grid = jnp.zeros(P * P, jnp.uint8).at[flat.reshape(-1)].max(vals.reshape(-1), mode="drop")
     return grid.reshape(P, P)
 
@@ -177,15 +186,13 @@ def likelihood_grid(
 ) -> LikelihoodGrid:
     """The smeared grid of the reference points (masked ones and those outside the grid ignored).
 
-    Both levels are scattered point by point (cost m (2h+1)^2 and m (2h+block)^2), so building it
-    costs the points, not the grid area (beyond zeroing it).
+    The kernels are scattered point by point (cost m (2h+1)^2), the coarse level is a dense
+    sliding max (2 ceil(log2 block) passes over the padded grid).
     """
     rc = cell_of(spec, center_xy, points_world)
     inside = mask & jnp.all((rc >= 0) & (rc < spec.cells), axis=-1)
-    kernel, pooled_kernel = _kernel(spec, params)
-    h = spec.smear_half_cells
-    values = _splat(spec, rc, inside, kernel, -h)
-    pooled = _splat(spec, rc, inside, pooled_kernel, -h - spec.block + 1)
+    values = _splat(spec, rc, inside, _kernel(spec, params))
+    pooled = _forward_max(values, spec.block)
     return LikelihoodGrid(values, pooled, jnp.asarray(center_xy, jnp.float32))
 
 

@@ -58,8 +58,9 @@ def _scan(pose, segments=ROOM, max_range=6.0):
     )
 
 
-def test_grid_matches_numpy_smear_and_max_pool():
-    spec = MatchSpec(cells=96, resolution=0.02, window_cells=6, block=4, smear_half_cells=3)
+@pytest.mark.parametrize("block", [4, 5])
+def test_grid_matches_numpy_smear_and_max_pool(block):
+    spec = MatchSpec(cells=96, resolution=0.02, window_cells=6, block=block, smear_half_cells=3)
     rng = np.random.default_rng(0)
     center = np.array([0.3, -0.2])
     pts = center + rng.uniform(-1.1, 1.1, (40, 2))  # some fall outside the 1.92 m grid
