@@ -62,7 +62,7 @@ def _specs() -> dict:
     from jaxquad.kernels.scan_grid import MatchSpec, cells_for_range
 
     cells = cells_for_range(_MAX_RANGE, 0.01, 30)
-    common = dict(cells=cells, resolution=0.01, window_cells=30, angle_window_deg=20.0, block=8, candidates=16)
+    common = dict(cells=cells, resolution=0.01, window_cells=30, angle_window_deg=20.0, block=16, candidates=4)
     return {
         "exact 0.5 deg": MatchSpec(angle_step_deg=0.5, fine_angle_step_deg=0.5, **common),
         "2 deg + 0.5 deg refine": MatchSpec(angle_step_deg=2.0, fine_angle_step_deg=0.5, **common),

@@ -48,8 +48,8 @@ class MatchSpec(eqx.Module):
     angle_step_deg: float = eqx.field(static=True, default=2.0)  # exact (stage 1) rotation step, deg
     fine_angle_step_deg: float = eqx.field(static=True, default=0.2)  # refinement step within +-angle_step
     refine_cells: int = eqx.field(static=True, default=1)  # refinement translation +- cells
-    block: int = eqx.field(static=True, default=8)  # coarse-level block side, cells
-    candidates: int = eqx.field(static=True, default=16)  # coarse blocks expanded per round
+    block: int = eqx.field(static=True, default=16)  # coarse-level block side, cells
+    candidates: int = eqx.field(static=True, default=4)  # coarse blocks expanded per round
     smear_half_cells: int = eqx.field(static=True, default=6)  # smear kernel reach, cells (2 sigma)
     cov_points: int = eqx.field(static=True, default=10)  # covariance lattice +- this many points per axis
 
@@ -87,7 +87,7 @@ class MatchSpec(eqx.Module):
             resolution=resolution,
             window_cells=window_cells,
             smear_half_cells=1,
-            block=4,
+            block=8,
             **kw,
         )
 
