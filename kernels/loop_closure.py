@@ -114,12 +114,13 @@ def find_loop_closure(
         & (fine.response >= params.fine_response)
         & unambiguous
     )
-    T_world_i = SE2.from_xy_theta(poses[nearest, 0], poses[nearest, 1], poses[nearest, 2])
-    T_world_j = SE2.from_xy_theta(fine.pose[0], fine.pose[1], fine.pose[2])
-    T_i_j = T_world_i.inverse() @ T_world_j
-    R = T_world_i.rotation().as_matrix()
-    R3 = jnp.zeros((3, 3)).at[:2, :2].set(R).at[2, 2].set(1.0)
-    cov = R3.T @ fine.covariance @ R3  # world-frame covariance of j's pose, seen from node i's frame
+    with jax.default_matmul_precision("highest"):  # GPUs would round float32 matmuls to TF32
+        T_world_i = SE2.from_xy_theta(poses[nearest, 0], poses[nearest, 1], poses[nearest, 2])
+        T_world_j = SE2.from_xy_theta(fine.pose[0], fine.pose[1], fine.pose[2])
+        T_i_j = T_world_i.inverse() @ T_world_j
+        R = T_world_i.rotation().as_matrix()
+        R3 = jnp.zeros((3, 3)).at[:2, :2].set(R).at[2, 2].set(1.0)
+        cov = R3.T @ fine.covariance @ R3  # world-frame covariance of j's pose, seen from node i's frame
     return LoopCandidate(
         i=nearest.astype(jnp.int32),
         j=jnp.asarray(j, jnp.int32),

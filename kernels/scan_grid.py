@@ -129,7 +129,8 @@ def world_points(
     """End points of n scans taken at sensor poses (x, y, theta, world), flattened, with validity."""
     p_sensor, ok = jax.vmap(scan_points, in_axes=(None, 0, None, 0))(params, ranges, bearings, valid)
     T = jax.vmap(SE2.from_xy_theta)(poses[:, 0], poses[:, 1], poses[:, 2])
-    p_world = jax.vmap(lambda T, p: jax.vmap(T.apply)(p))(T, p_sensor)
+    with jax.default_matmul_precision("highest"):  # GPUs would round float32 matmuls to TF32
+        p_world = jax.vmap(lambda T, p: jax.vmap(T.apply)(p))(T, p_sensor)
     return p_world.reshape(-1, 2), ok.reshape(-1)
 
 

@@ -34,6 +34,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from jaxquad.kernels.lie import SO2
 from jaxquad.kernels.scan_grid import (
     GRID_MAX,
     LikelihoodGrid,
@@ -70,9 +71,9 @@ def scan_lookup(
 ) -> tuple[Int[Array, "a b 2"], Bool[Array, "a b"]]:
     """Unpadded (row, col) cells of the end points at each angle and zero shift, and which count
     (valid and inside the grid; a point outside scores nothing at every shift)."""
-    c, s = jnp.cos(angles)[:, None], jnp.sin(angles)[:, None]
-    x, y = p_sensor[:, 0], p_sensor[:, 1]
-    p_world = jnp.stack([c * x - s * y, s * x + c * y], -1) + prior_xy
+    R = jax.vmap(lambda a: SO2.from_radians(a).as_matrix())(angles)  # (a, 2, 2)
+    # Elementwise products, not a matmul: GPUs would round float32 matmuls to TF32 (cm at 4 m).
+    p_world = jnp.sum(R[:, None, :, :] * p_sensor[None, :, None, :], axis=-1) + prior_xy
     rc = cell_of(spec, grid.center_xy, p_world)
     inside = ok & jnp.all((rc >= 0) & (rc < spec.cells), axis=-1)
     return rc, inside
@@ -153,9 +154,9 @@ def _response_moments(resp: Array, best: Array, drop: Array, x: Array) -> tuple[
     else 0 (a floor of 1e-6 keeps an all-zero response, no information, as uniform weights)."""
     w = jnp.where(resp >= best - drop, jnp.maximum(resp, 1e-6), 0.0)
     w = w / jnp.sum(w)
-    mean = w @ x
+    mean = jnp.sum(w[:, None] * x, axis=0)
     dx = x - mean
-    return mean, (w[:, None] * dx).T @ dx
+    return mean, jnp.sum(w[:, None, None] * dx[:, :, None] * dx[:, None, :], axis=0)
 
 
 def match_scan(
