@@ -38,7 +38,7 @@ def _nodes(segments, truth, drift):
     est = truth + np.linspace(0, 1, len(truth))[:, None] * np.asarray(drift)
     n = len(truth)
     pad = CAPACITY - n
-    f = lambda x: jnp.asarray(np.concatenate([x, np.zeros((pad, *x.shape[1:]))]), jnp.float32)  # noqa: E731
+    f = lambda x: jnp.asarray(np.concatenate([x, np.zeros((pad, *x.shape[1:]))]), jnp.float32)
     valid = np.isfinite(ranges)
     mask = np.arange(CAPACITY) < n
     return f(est), f(np.where(valid, ranges, 0)), jnp.asarray(np.pad(valid, ((0, pad), (0, 0)))), jnp.asarray(mask)
