@@ -191,7 +191,8 @@ def likelihood_grid(
     sliding max (2 ceil(log2 block) passes over the padded grid).
     """
     rc = cell_of(spec, center_xy, points_world)
-    inside = mask & jnp.all((rc >= 0) & (rc < spec.cells), axis=-1)
+    finite = jnp.all(jnp.isfinite(points_world - center_xy), axis=-1)  # NaN casts to an arbitrary cell
+    inside = mask & finite & jnp.all((rc >= 0) & (rc < spec.cells), axis=-1)
     values = _splat(spec, rc, inside, _kernel(spec, params))
     pooled = _forward_max(values, spec.block)
     return LikelihoodGrid(values, pooled, jnp.asarray(center_xy, jnp.float32))

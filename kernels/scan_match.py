@@ -75,7 +75,8 @@ def scan_lookup(
     # Elementwise products, not a matmul: GPUs would round float32 matmuls to TF32 (cm at 4 m).
     p_world = jnp.sum(R[:, None, :, :] * p_sensor[None, :, None, :], axis=-1) + prior_xy
     rc = cell_of(spec, grid.center_xy, p_world)
-    inside = ok & jnp.all((rc >= 0) & (rc < spec.cells), axis=-1)
+    # Finite check first: NaN casts to an arbitrary integer (0 on GPUs, a valid cell).
+    inside = ok & jnp.all(jnp.isfinite(p_world), axis=-1) & jnp.all((rc >= 0) & (rc < spec.cells), axis=-1)
     return rc, inside
 
 
@@ -173,7 +174,8 @@ def match_scan(
     """Best sensor pose of one scan against `grid` within the search window around `prior` (x, y, theta).
 
     `exclude_xy`/`exclude_radius` (world, m) leave out stage-1 translations within that distance of
-    a point (used to find the second-best distinct peak); by default nothing is excluded.
+    a point (used to find the second-best distinct peak); by default nothing is excluded. A
+    non-finite prior or grid centre scores no beam: response 0 (the pose is then not finite).
     """
     p_sensor, ok = scan_points(params, ranges, bearings, valid)
     n_valid = jnp.sum(ok).astype(jnp.int32)

@@ -198,6 +198,11 @@ def test_invalid_beams_ignored():
     np.testing.assert_array_equal(np.asarray(out.pose), np.asarray(clean.pose))
     none = _match(spec, PARAMS, g, jnp.zeros(3), r, b, jnp.zeros_like(v))
     assert float(none.response) == 0.0 and np.all(np.isfinite(np.asarray(none.covariance)))
+    lost = _match(spec, PARAMS, g, _f32([np.nan, 0.0, 0.0]), r, b, v)
+    assert float(lost.response) == 0.0 and int(lost.score) == 0
+    pts = _f32([[0.1, 0.2], [np.nan, 0.0], [np.inf, 1.0]])
+    nan_grid = jax.jit(likelihood_grid, static_argnums=0)(spec, PARAMS, _f32([0.0, 0.0]), pts, jnp.ones(3, bool))
+    assert int(np.sum(np.asarray(nan_grid.values) == 100)) == 1  # only the finite point
 
 
 def test_covariance_larger_along_corridor():
