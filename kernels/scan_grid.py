@@ -36,9 +36,9 @@ class MatchSpec(eqx.Module):
     """Static structure of a correlative scan match: sizes and step counts (shapes depend on them).
 
     Defaults are the paper's correlation settings (Karto/slam_toolbox): window +-0.5 m at 0.01 m,
-    angles +-20 deg in 2 deg steps refined at 0.2 deg. `cells` bounds the scored range: scan points
-    more than about (cells / 2 - window_cells) * resolution from the grid centre score nothing
-    (1024 cells at 0.01 m: about 4.6 m; raise `cells` or `resolution` for longer-range lasers).
+    angles +-20 deg in 2 deg steps refined at 0.2 deg. `cells` bounds the range used: beams longer
+    than `reach` = (cells / 2 - window_cells - 1) * resolution are left out of the match (1024 cells
+    at 0.01 m: 4.61 m; `cells_for_range` sizes the grid for a longer-range laser).
     """
 
     cells: int = eqx.field(static=True, default=1024)  # grid side, cells
@@ -74,6 +74,11 @@ class MatchSpec(eqx.Module):
     def margin(self) -> int:
         """Zero padding, cells: the covariance lattice reaches 2 window + refine cells from the centre."""
         return 2 * self.window_cells + max(self.block, self.refine_cells) + 1
+
+    @property
+    def reach(self) -> float:
+        """Longest range (m) whose end point stays inside the grid at every searched translation."""
+        return (self.cells // 2 - self.window_cells - 1) * self.resolution
 
     @property
     def padded(self) -> int:

@@ -1,9 +1,9 @@
 """Correlative scan matching (Karto/slam_toolbox style) with an exact multi-resolution search.
 
-The score of a sensor pose (x, y, theta) is the integer sum, over the valid beams, of the
-`LikelihoodGrid` values at the cells their end points fall in; the response is that sum divided by
-100 times the number of valid beams (in [0, 1]: the fraction of beams that land on reference
-structure, smear-weighted). Poses searched: the prior's x and y plus whole cells within
+The score of a sensor pose (x, y, theta) is the integer sum, over the valid beams (finite, within
+[range_min, range_max] and within the grid's `reach`), of the `LikelihoodGrid` values at the cells
+their end points fall in; the response is that sum divided by 100 times the number of valid beams
+(in [0, 1]: the fraction of beams that land on reference structure, smear-weighted). Poses searched: the prior's x and y plus whole cells within
 +-`window_cells` (the grid step), and the prior's theta plus whole `angle_step_deg` within
 +-`angle_window_deg`. End points are rotated once per angle into cells (Karto's lookup arrays), so
 a translation is an integer shift of the cell indices.
@@ -177,7 +177,7 @@ def match_scan(
     a point (used to find the second-best distinct peak); by default nothing is excluded. A
     non-finite prior or grid centre scores no beam: response 0 (the pose is then not finite).
     """
-    p_sensor, ok = scan_points(params, ranges, bearings, valid)
+    p_sensor, ok = scan_points(params, ranges, bearings, valid & (ranges <= spec.reach))
     n_valid = jnp.sum(ok).astype(jnp.int32)
     denom = GRID_MAX * jnp.maximum(n_valid, 1).astype(jnp.float32)
     prior_xy, res, P = prior[:2], spec.resolution, spec.padded

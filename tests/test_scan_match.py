@@ -142,7 +142,8 @@ def test_multiresolution_equals_exhaustive(seed, candidates):
     v = v & jnp.asarray(rng.random(v.shape[0]) > 0.3)  # drop beams so that the optimum is not obvious
     prior = _f32(true + rng.uniform(-0.1, 0.1, 3))
     out = _match(spec, PARAMS, g, prior, r, b, v)
-    p, ok = np.stack([r * np.cos(BEARINGS), r * np.sin(BEARINGS)], -1), np.asarray(v)
+    p = np.stack([r * np.cos(BEARINGS), r * np.sin(BEARINGS)], -1)
+    ok = np.asarray(v) & (np.asarray(r) <= spec.reach)  # longer beams leave the grid: not used
     rc, inside = scan_lookup(spec, g, prior[:2], search_angles(spec, prior[2]), _f32(p), jnp.asarray(ok))
     scores = _exhaustive(spec, g, rc, inside)
     assert int(out.score) == scores.max()
