@@ -96,3 +96,21 @@ def test_repeated_corridor_rejected_as_ambiguous():
     assert not bool(out.accept)
     lenient = _find(SPEC, LoopParams(ambiguity_ratio=jnp.asarray(1.01)), poses, ranges, valid, mask, j)
     assert bool(lenient.accept)  # the ambiguity test is what rejects it
+
+
+def test_vmapped_over_robots_equals_single():
+    truth = _path([(0.0, -3.0), (4.0, -3.0), (4.0, 3.0), (-4.0, 3.0), (-4.0, -3.0), (1.5, -3.0)], 0.25)
+    a = _nodes(LOOP_WORLD, truth, (0.5, -0.35, 0.06))
+    b = _nodes(LOOP_WORLD, truth, (-0.3, 0.4, -0.05))
+    js = jnp.array([len(truth) - 1, len(truth) - 3])
+    stacked = [jnp.stack([x, y]) for x, y in zip(a, b)]
+    bearings = jnp.asarray(BEARINGS, jnp.float32)
+
+    def one(poses, ranges, valid, mask, j):
+        return find_loop_closure(SPEC, LoopParams(), poses, ranges, valid, bearings, mask, j)
+
+    fleet = jax.jit(jax.vmap(one))(*stacked, js)
+    for k, args in enumerate((a, b)):
+        single = _find(SPEC, LoopParams(), *args, js[k])
+        assert bool(fleet.accept[k]) == bool(single.accept) and bool(single.accept)
+        np.testing.assert_allclose(np.asarray(fleet.T_i_j[k]), np.asarray(single.T_i_j), atol=1e-5)
