@@ -93,8 +93,9 @@ def find_loop_closure(
 
     # Reference: up to `chain` scans of the chosen run around its nearest node.
     C = spec.chain
-    ref = jnp.clip(nearest - C // 2 + jnp.arange(C), 0, n - 1)
-    in_chain = (label[ref] == label[nearest]) & found & (jnp.abs(ref - (nearest - C // 2 + jnp.arange(C))) == 0)
+    raw = nearest - C // 2 + jnp.arange(C)
+    ref = jnp.clip(raw, 0, n - 1)
+    in_chain = found & (raw >= 0) & (raw < n) & (label[ref] == label[nearest])
     pts, mask = world_points(params.match, poses[ref], ranges[ref], bearings, valid[ref] & in_chain[:, None])
 
     prior = poses[j]
