@@ -52,7 +52,7 @@ class LoopCandidate(eqx.Module):
     i: Int[Array, ""]  # old node the constraint attaches to (the chain node nearest to node j)
     j: Int[Array, ""]  # current node
     T_i_j: Float[Array, "3"]  # pose of node j in node i's frame: x, y (m), theta (rad)
-    covariance: Float[Array, "3 3"]  # of T_i_j, in node i's frame (m^2, rad^2)
+    covariance: Float[Array, "3 3"]  # of T_i_j's right perturbation (translation in node j's frame), m^2, rad^2
     accept: Bool[Array, ""]
     chain_length: Int[Array, ""]  # consecutive nearby old nodes in the chosen chain (0: none)
     coarse_response: Float[Array, ""]
@@ -119,9 +119,11 @@ def find_loop_closure(
         T_world_i = SE2.from_xy_theta(poses[nearest, 0], poses[nearest, 1], poses[nearest, 2])
         T_world_j = SE2.from_xy_theta(fine.pose[0], fine.pose[1], fine.pose[2])
         T_i_j = T_world_i.inverse() @ T_world_j
-        R = T_world_i.rotation().as_matrix()
+        # The match's covariance is of j's world position; g2o's SE2 edge error (Z^-1 T_i^-1 T_j) has its
+        # translation in node j's frame, so the constraint's covariance is rotated into that frame.
+        R = T_world_j.rotation().as_matrix()
         R3 = jnp.zeros((3, 3)).at[:2, :2].set(R).at[2, 2].set(1.0)
-        cov = R3.T @ fine.covariance @ R3  # world-frame covariance of j's pose, seen from node i's frame
+        cov = R3.T @ fine.covariance @ R3
     return LoopCandidate(
         i=nearest.astype(jnp.int32),
         j=jnp.asarray(j, jnp.int32),
