@@ -13,12 +13,12 @@ describe the same scans twice). FLASER lines hold no angles: the beams are taken
 `flaser_fov_deg` (180 deg by default, the front SICK of the classic logs) counter-clockwise from
 -fov/2, at fov/(n - 1) per beam when n is odd (both edges measured: 181, 361 beams) and at fov/n
 when n is even (180, 360 beams). A ROBOTLASER1 beam i is at start_angle + i angular_resolution, and
-its readings at or beyond maximum_range become +inf (no return); FLASER readings are kept as
-they are (a log's no-return value, e.g. 81.91 m, is then left out by the matcher's range_max). Odometry comes from ODOM lines when
-the log has any, else from each scan's odometry fields. Every other upper-case tag (PARAM, SYNC,
+its readings at or beyond maximum_range become +inf (no return); FLASER readings are kept as they
+are (a log's no-return value, e.g. 81.91 m, is then left out by the matcher's range_max). Odometry
+comes from ODOM lines when the log has any, else from each scan's odometry fields. Every other upper-case tag (PARAM, SYNC,
 TRUEPOS, RAWLASER1-4, RLASER, ...) is skipped; anything else is an error naming the file and line.
 
-`.npz` laser log (all float64 unless noted):
+`.npz` laser log (float64 arrays):
 
 | key | shape | unit / meaning | |
 |---|---|---|---|
