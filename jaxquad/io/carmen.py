@@ -15,8 +15,9 @@ describe the same scans twice). FLASER lines hold no angles: the beams are taken
 when n is even (180, 360 beams). A ROBOTLASER1 beam i is at start_angle + i angular_resolution, and
 its readings at or beyond maximum_range become +inf (no return); FLASER readings are kept as they
 are (a log's no-return value, e.g. 81.91 m, is then left out by the matcher's range_max). Odometry
-comes from ODOM lines when the log has any, else from each scan's odometry fields. Every other upper-case tag (PARAM, SYNC,
-TRUEPOS, RAWLASER1-4, RLASER, ...) is skipped; anything else is an error naming the file and line.
+comes from ODOM lines when the log has any, else from each scan's odometry fields. Every other
+upper-case tag (PARAM, SYNC, TRUEPOS, RAWLASER1-4, RLASER, ...) is skipped; anything else is an
+error naming the file and line.
 
 `.npz` laser log (float64 arrays):
 
