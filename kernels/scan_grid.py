@@ -50,6 +50,7 @@ class MatchSpec(eqx.Module):
     refine_cells: int = eqx.field(static=True, default=1)  # refinement translation +- cells
     block: int = eqx.field(static=True, default=16)  # coarse-level block side, cells
     candidates: int = eqx.field(static=True, default=4)  # coarse blocks expanded per round
+    max_rounds: int | None = eqx.field(static=True, default=None)  # cap on rounds (None: exact, no cap)
     smear_half_cells: int = eqx.field(static=True, default=6)  # smear kernel reach, cells (2 sigma)
     cov_points: int = eqx.field(static=True, default=10)  # covariance lattice +- this many points per axis
 

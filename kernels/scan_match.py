@@ -3,9 +3,9 @@
 The score of a sensor pose (x, y, theta) is the integer sum, over the valid beams (finite, within
 [range_min, range_max] and within the grid's `reach`), of the `LikelihoodGrid` values at the cells
 their end points fall in; the response is that sum divided by 100 times the number of valid beams
-(in [0, 1]: the fraction of beams that land on reference structure, smear-weighted). Poses searched: the prior's x and y plus whole cells within
-+-`window_cells` (the grid step), and the prior's theta plus whole `angle_step_deg` within
-+-`angle_window_deg`. End points are rotated once per angle into cells (Karto's lookup arrays), so
+(in [0, 1]: the fraction of beams that land on reference structure, smear-weighted). Poses
+searched: the prior's x and y plus whole cells within +-`window_cells` (the grid step), and the
+prior's theta plus whole `angle_step_deg` within +-`angle_window_deg`. End points are rotated once per angle into cells (Karto's lookup arrays), so
 a translation is an integer shift of the cell indices.
 
 Stage 1 (exact, multi-resolution): every coarse block (`block` x `block` translations at one angle)
@@ -13,7 +13,9 @@ is scored on the max-pooled grid, which bounds every pose of the block from abov
 expanded (all their poses scored on the fine grid) in order of decreasing bound, `candidates` at a
 time, until the next bound is no larger than the best score found: every pose left unexpanded then
 scores at most the best, so the result attains the exhaustive maximum (ties may resolve to a
-different maximiser). A `lax.while_loop` does the rounds; usually one round is enough.
+different maximiser). A `lax.while_loop` does the rounds, usually one to three. Under `vmap` every
+item runs as many rounds as the batch's slowest; `max_rounds` caps them (the result then carries
+`exact = False` where the cap cut the search short).
 
 Stage 2 (refinement): angles at `fine_angle_step_deg` within +-`angle_step_deg` of the stage-1
 angle, translations within +-`refine_cells`; the pose returned is the mean of the poses that
@@ -53,6 +55,7 @@ class MatchResult(eqx.Module):
     score: Int[Array, ""]  # stage-1 integer score (the exhaustive maximum over the search grid)
     n_valid: Int[Array, ""]  # beams that count in the response
     expanded: Int[Array, ""]  # coarse blocks scored on the fine grid
+    exact: Bool[Array, ""]  # stage 1 provably reached the exhaustive maximum (False only when max_rounds cut it)
 
 
 def search_angles(spec: MatchSpec, theta0: Float[Array, ""]) -> Float[Array, " a"]:
@@ -93,15 +96,9 @@ def _scores(table: Array, flat: Array, shift: Array, inside: Array) -> Array:
 
 
 def _exact_search(spec, grid, flat, inside, exclude_rc, exclude_r2):
-    """Stage 1: (score, angle index, row shift, col shift, blocks expanded) of the best pose among those
-    not within sqrt(exclude_r2) cells of exclude_rc."""
-    W, s, nb, P, K = (
-        spec.window_cells,
-        spec.block,
-        spec.n_blocks,
-        spec.padded,
-        spec.candidates,
-    )
+    """Stage 1: (score, angle index, row shift, col shift, blocks expanded, exact) of the best pose among
+    those not within sqrt(exclude_r2) cells of exclude_rc."""
+    W, s, nb, P, K = spec.window_cells, spec.block, spec.n_blocks, spec.padded, spec.candidates
     A = flat.shape[0]
     start = -W + s * jnp.arange(nb)
     block_shift = (start[:, None] * P + start[None, :]).reshape(-1)  # (nb^2,)
@@ -141,13 +138,18 @@ def _exact_search(spec, grid, flat, inside, exclude_rc, exclude_r2):
             pick(start[b[k] % nb] + c, best_c),
         )
 
-    def more(state):
+    cap = n_rounds if spec.max_rounds is None else min(n_rounds, spec.max_rounds)
+
+    def unfinished(state):
         i, best = state[0], state[1]
         return (i < n_rounds) & (sorted_bounds[jnp.minimum(i * K, n_rounds * K - 1)] > best)
 
     zero = jnp.int32(0)
-    i, best, a, r, c = jax.lax.while_loop(more, expand, (zero, jnp.int32(-1), zero, zero, zero))
-    return best, a, r, c, jnp.minimum(i * K, n)
+    state = jax.lax.while_loop(
+        lambda st: unfinished(st) & (st[0] < cap), expand, (zero, jnp.int32(-1), zero, zero, zero)
+    )
+    i, best, a, r, c = state
+    return best, a, r, c, jnp.minimum(i * K, n), ~unfinished(state)
 
 
 def _response_moments(resp: Array, best: Array, drop: Array, x: Array) -> tuple[Array, Array]:
@@ -187,7 +189,7 @@ def match_scan(
     flat = _flat(spec, rc, inside)
     ex = jnp.zeros(2) if exclude_xy is None else (exclude_xy - prior_xy)[::-1] / res
     ex_r2 = (jnp.asarray(exclude_radius, jnp.float32) / res) ** 2
-    score, a, r0, c0, expanded = _exact_search(spec, grid, flat, inside, ex, ex_r2)
+    score, a, r0, c0, expanded, exact = _exact_search(spec, grid, flat, inside, ex, ex_r2)
 
     # Stage 2: fine angles around the stage-1 angle, +-refine_cells around its translation.
     J, R = spec.n_fine, spec.refine_cells
@@ -227,4 +229,4 @@ def match_scan(
     mean_r = r0 + jnp.sum(tie.sum(0).reshape(2 * R + 1, 2 * R + 1).sum(1) * dd)
     mean_c = c0 + jnp.sum(tie.sum(0).reshape(2 * R + 1, 2 * R + 1).sum(0) * dd)
     pose = jnp.stack([prior[0] + mean_c * res, prior[1] + mean_r * res, jnp.sum(tie.sum(1) * fine)])
-    return MatchResult(pose, response, score / denom, cov, score, n_valid, expanded)
+    return MatchResult(pose, response, score / denom, cov, score, n_valid, expanded, exact)

@@ -146,7 +146,7 @@ def test_multiresolution_equals_exhaustive(seed, candidates):
     ok = np.asarray(v) & (np.asarray(r) <= spec.reach)  # longer beams leave the grid: not used
     rc, inside = scan_lookup(spec, g, prior[:2], search_angles(spec, prior[2]), _f32(p), jnp.asarray(ok))
     scores = _exhaustive(spec, g, rc, inside)
-    assert int(out.score) == scores.max()
+    assert int(out.score) == scores.max() and bool(out.exact)
     assert int(out.expanded) < scores.size // spec.block**2  # the bound prunes most blocks
     # Excluding a disc around the optimum: the best score outside it, exhaustively.
     ex = np.asarray(out.pose[:2])
@@ -155,6 +155,10 @@ def test_multiresolution_equals_exhaustive(seed, candidates):
     dy, dx = np.meshgrid(k + float(prior[1]) - ex[1], k + float(prior[0]) - ex[0], indexing="ij")
     far = (dx**2 + dy**2) / spec.resolution**2 >= (0.1 / spec.resolution) ** 2 - 1e-3
     assert int(exc.score) == scores[:, far].max() < scores.max()
+    if candidates == 1:  # one block per round: capped at one round, the search says it may not be exact
+        capped = MatchSpec(cells=640, window_cells=20, block=4, candidates=1, max_rounds=1)
+        cut = _match(capped, PARAMS, g, prior, r, b, v)
+        assert int(out.expanded) > 1 and not bool(cut.exact) and int(cut.score) <= int(out.score)
 
 
 def test_recovers_known_transform_and_vmaps():
