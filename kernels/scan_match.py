@@ -5,8 +5,8 @@ The score of a sensor pose (x, y, theta) is the integer sum, over the valid beam
 their end points fall in; the response is that sum divided by 100 times the number of valid beams
 (in [0, 1]: the fraction of beams that land on reference structure, smear-weighted). Poses
 searched: the prior's x and y plus whole cells within +-`window_cells` (the grid step), and the
-prior's theta plus whole `angle_step_deg` within +-`angle_window_deg`. End points are rotated once per angle into cells (Karto's lookup arrays), so
-a translation is an integer shift of the cell indices.
+prior's theta plus whole `angle_step_deg` within +-`angle_window_deg`. End points are rotated once
+per angle into cells (Karto's lookup arrays), so a translation is an integer shift of the cells.
 
 Stage 1 (exact, multi-resolution): every coarse block (`block` x `block` translations at one angle)
 is scored on the max-pooled grid, which bounds every pose of the block from above. Blocks are
