@@ -27,6 +27,10 @@ def add_arguments(parser) -> None:
         help="coarse blocks expanded per round of the exact search (default: 4; under vmap every item runs "
         "as many rounds as the batch's worst item)",
     )  # fmt: skip
+    parser.add_argument(
+        "--frontend-max-rounds", type=int, default=None,
+        help="cap on those rounds (default: none, every match exact; capped matches report exact = False)",
+    )  # fmt: skip
 
 
 def _inputs(batch: int, seed: int = 0):
@@ -63,18 +67,26 @@ def _inputs(batch: int, seed: int = 0):
     return f32(ref_poses), ref_ranges, f32(prior), query, f32(bearings), true
 
 
-def _specs(candidates: int = 4) -> dict:
+def _specs(candidates: int = 4, max_rounds: int | None = None) -> dict:
     from jaxquad.kernels.scan_grid import MatchSpec, cells_for_range
 
     cells = cells_for_range(_MAX_RANGE, 0.01, 30)
-    common = dict(cells=cells, resolution=0.01, window_cells=30, angle_window_deg=20.0, block=16, candidates=candidates)
+    common = dict(
+        cells=cells,
+        resolution=0.01,
+        window_cells=30,
+        angle_window_deg=20.0,
+        block=16,
+        candidates=candidates,
+        max_rounds=max_rounds,
+    )
     return {
         "exact 0.5 deg": MatchSpec(angle_step_deg=0.5, fine_angle_step_deg=0.5, **common),
         "2 deg + 0.5 deg refine": MatchSpec(angle_step_deg=2.0, fine_angle_step_deg=0.5, **common),
     }
 
 
-def bench_frontend(batches=(1, 4096), repeats: int = 20, candidates: int = 4) -> dict:
+def bench_frontend(batches=(1, 4096), repeats: int = 20, candidates: int = 4, max_rounds: int | None = None) -> dict:
     """Rows of (what, spec, batch, compile_s, run_ms, per_item_us, throughput_per_s) and match accuracy."""
     import jax
     import jax.numpy as jnp
@@ -88,7 +100,7 @@ def bench_frontend(batches=(1, 4096), repeats: int = 20, candidates: int = 4) ->
     rows, accuracy = [], {}
     for batch in batches:
         ref_poses, ref_ranges, prior, query, bearings, true = _inputs(batch)
-        for name, spec in _specs(candidates).items():
+        for name, spec in _specs(candidates, max_rounds).items():
 
             def build(ref_poses, ref_ranges, prior, spec=spec, bearings=bearings):
                 pts, mask = world_points(params, ref_poses, ref_ranges, bearings, jnp.isfinite(ref_ranges))
@@ -129,6 +141,7 @@ def bench_frontend(batches=(1, 4096), repeats: int = 20, candidates: int = 4) ->
                 "median_err_deg": round(float(np.rad2deg(np.median(err_t))), 3),
                 "mean_expanded_blocks": round(float(np.mean(np.asarray(out.expanded))), 1),
                 "max_expanded_blocks": int(np.max(np.asarray(out.expanded))),
+                "exact_fraction": round(float(np.mean(np.asarray(out.exact))), 4),
                 "mean_response": round(float(np.mean(np.asarray(out.response))), 3),
             }
             del grid, out
@@ -142,4 +155,7 @@ def run(args: argparse.Namespace) -> dict:
     candidates = getattr(args, "frontend_candidates", 4)
     if candidates < 1:
         raise ValueError(f"--frontend-candidates must be >= 1, got {candidates}")
-    return bench_frontend(tuple(args.batch), repeats, candidates)
+    max_rounds = getattr(args, "frontend_max_rounds", None)
+    if max_rounds is not None and max_rounds < 1:
+        raise ValueError(f"--frontend-max-rounds must be >= 1, got {max_rounds}")
+    return bench_frontend(tuple(args.batch), repeats, candidates, max_rounds)
