@@ -1,0 +1,116 @@
+"""Loop-closure candidates on scans cast by an independent NumPy caster: a loop around a block (found, with
+the true relative pose), a corridor of identical pillars (rejected as ambiguous), too-short chains."""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from _laser2d import box, cast
+
+from jaxquad.kernels.lie import SE2
+from jaxquad.kernels.loop_closure import LoopParams, LoopSpec, find_loop_closure
+
+BEARINGS = np.linspace(-np.pi, np.pi, 240, endpoint=False)
+CAPACITY = 128
+SPEC = LoopSpec()
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _find(spec, params, poses, ranges, valid, node_mask, j):
+    return find_loop_closure(spec, params, poses, ranges, valid, jnp.asarray(BEARINGS, jnp.float32), node_mask, j)
+
+
+def _path(corners, spacing):
+    """Poses every `spacing` m along a polyline, heading along it."""
+    out = []
+    for a, b in zip(corners[:-1], corners[1:]):
+        d = np.subtract(b, a)
+        length = np.linalg.norm(d)
+        for s in np.arange(0.0, length, spacing):
+            out.append([*(a + d * s / length), np.arctan2(d[1], d[0])])
+    return np.array(out)
+
+
+def _nodes(segments, truth, drift):
+    """Scans at the true poses; stored poses drift linearly with the node index up to `drift` (x, y, theta)."""
+    ranges = np.stack([cast(segments, p, BEARINGS, 6.0) for p in truth])
+    est = truth + np.linspace(0, 1, len(truth))[:, None] * np.asarray(drift)
+    n = len(truth)
+    pad = CAPACITY - n
+    f = lambda x: jnp.asarray(np.concatenate([x, np.zeros((pad, *x.shape[1:]))]), jnp.float32)
+    valid = np.isfinite(ranges)
+    mask = np.arange(CAPACITY) < n
+    return f(est), f(np.where(valid, ranges, 0)), jnp.asarray(np.pad(valid, ((0, pad), (0, 0)))), jnp.asarray(mask)
+
+
+def _relative(a, b):
+    T = SE2.from_xy_theta(*a).inverse() @ SE2.from_xy_theta(*b)
+    return np.array([*np.asarray(T.translation()), float(T.rotation().as_radians())])
+
+
+# A 2 m wide corridor around a block, with a few features on its walls so that places differ.
+LOOP_WORLD = np.concatenate(
+    [box(-5, -4, 5, 4), box(-3, -2, 3, 2), box(-1.0, -4.0, -0.6, -3.6), box(1.5, -2.3, 2.3, -2.0),
+     box(4.6, 0.5, 5.0, 1.3), box(-5.0, -1.0, -4.7, -0.2), box(0.0, 3.7, 0.8, 4.0)]
+)  # fmt: skip
+
+
+def test_loop_found_with_true_relative_pose():
+    truth = _path([(0.0, -3.0), (4.0, -3.0), (4.0, 3.0), (-4.0, 3.0), (-4.0, -3.0), (1.5, -3.0)], 0.25)
+    drift = (0.5, -0.35, 0.06)  # odometry error accumulated over the loop
+    poses, ranges, valid, mask = _nodes(LOOP_WORLD, truth, drift)
+    j = len(truth) - 1
+    out = _find(SPEC, LoopParams(), poses, ranges, valid, mask, j)
+    assert bool(out.accept), out
+    i = int(out.i)
+    assert int(out.chain_length) >= 7 and i < 20
+    est_i = np.asarray(poses[i])
+    err = _relative(est_i, np.asarray(out.pose_j)) - _relative(truth[i], truth[j])
+    assert np.linalg.norm(err[:2]) < 0.03 and abs(err[2]) < np.deg2rad(1.0)
+    np.testing.assert_allclose(np.asarray(out.T_i_j), _relative(est_i, np.asarray(out.pose_j)), atol=1e-4)
+    assert float(out.second_response) < 0.9 * float(out.coarse_response)
+    assert np.all(np.linalg.eigvalsh(np.asarray(out.covariance)) > 0)
+    # Halfway round the loop there is no old place within 3 m: nothing to close.
+    half = _find(SPEC, LoopParams(), poses, ranges, valid, mask, 60)
+    assert not bool(half.accept) and int(half.chain_length) == 0
+    # A chain requirement longer than the run of nearby old nodes rejects the same candidate.
+    strict = _find(SPEC, LoopParams(min_chain=jnp.asarray(40)), poses, ranges, valid, mask, j)
+    assert not bool(strict.accept)
+
+
+def test_repeated_corridor_rejected_as_ambiguous():
+    # A straight corridor with identical pillars every 1.5 m on both walls, driven out and back.
+    walls = [np.array([[-2.0, -1.0, 30.0, -1.0], [-2.0, 1.0, 30.0, 1.0], [-2.0, -1.0, -2.0, 1.0]])]
+    pillars = [box(x, -1.0, x + 0.3, -0.7) for x in np.arange(-1.5, 30, 1.5)]
+    pillars += [box(x, 0.7, x + 0.3, 1.0) for x in np.arange(-1.5, 30, 1.5)]
+    world = np.concatenate(walls + pillars)
+    out_and_back = np.concatenate([_path([(0.0, 0.0), (12.0, 0.0)], 0.25), _path([(12.0, 0.1), (1.0, 0.1)], 0.25)])
+    # Drift along the corridor: the robot believes it is 1.2 m from where it is, near a period away.
+    poses, ranges, valid, mask = _nodes(world, out_and_back, (1.2, 0.0, 0.0))
+    j = len(out_and_back) - 1
+    out = _find(SPEC, LoopParams(), poses, ranges, valid, mask, j)
+    assert int(out.chain_length) >= 7
+    assert float(out.coarse_response) >= 0.35 and float(out.fine_response) >= 0.45  # confident on its own ...
+    assert float(out.second_response) >= 0.9 * float(out.coarse_response)  # ... but a period away looks the same
+    assert not bool(out.accept)
+    lenient = _find(SPEC, LoopParams(ambiguity_ratio=jnp.asarray(1.01)), poses, ranges, valid, mask, j)
+    assert bool(lenient.accept)  # the ambiguity test is what rejects it
+
+
+def test_vmapped_over_robots_equals_single():
+    truth = _path([(0.0, -3.0), (4.0, -3.0), (4.0, 3.0), (-4.0, 3.0), (-4.0, -3.0), (1.5, -3.0)], 0.25)
+    a = _nodes(LOOP_WORLD, truth, (0.5, -0.35, 0.06))
+    b = _nodes(LOOP_WORLD, truth, (-0.3, 0.4, -0.05))
+    js = jnp.array([len(truth) - 1, len(truth) - 3])
+    stacked = [jnp.stack([x, y]) for x, y in zip(a, b)]
+    bearings = jnp.asarray(BEARINGS, jnp.float32)
+
+    def one(poses, ranges, valid, mask, j):
+        return find_loop_closure(SPEC, LoopParams(), poses, ranges, valid, bearings, mask, j)
+
+    fleet = jax.jit(jax.vmap(one))(*stacked, js)
+    for k, args in enumerate((a, b)):
+        single = _find(SPEC, LoopParams(), *args, js[k])
+        assert bool(fleet.accept[k]) == bool(single.accept) and bool(single.accept)
+        np.testing.assert_allclose(np.asarray(fleet.T_i_j[k]), np.asarray(single.T_i_j), atol=1e-5)
