@@ -23,6 +23,7 @@ _SECTIONS: dict[str, tuple[str, str]] = {
     "kernels": ("jaxquad._bench_kernels", "contact observer, leg twist and scan kernels (default)"),
     "metrics": ("jaxquad._bench_metrics", "trajectory metrics"),
     "sim": ("jaxquad._bench_sim", "MJX simulation"),
+    "frontend": ("jaxquad._bench_slam_frontend", "SLAM front end: scan matching and likelihood grids"),
     "nav": ("jaxquad._bench_nav", "navigation: MPPI tick, costmap, global planner, frontier choice"),
     "localize": ("jaxquad._bench_localize", "AMCL update: R robots x P particles x B beams"),
 }

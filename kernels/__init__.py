@@ -15,3 +15,6 @@ from jaxquad.kernels.particle_filter import (
     AmclInputs, AmclOutput, AmclParams, AmclState, amcl_init, amcl_step, effective_sample_size, measurement_update,
     omni_motion, pose_estimate, systematic_resample,
 )  # fmt: skip
+from jaxquad.kernels.scan_grid import LikelihoodGrid, MatchParams, MatchSpec, cells_for_range, likelihood_grid, scan_points, world_points
+from jaxquad.kernels.scan_match import MatchResult, match_scan, scan_lookup, search_angles
+from jaxquad.kernels.loop_closure import LoopCandidate, LoopParams, LoopSpec, find_loop_closure

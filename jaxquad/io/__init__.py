@@ -4,6 +4,7 @@ observer parameter files, and the atomic writes every writer uses."""
 from jaxquad.io.atomic import (
     atomic_dir, atomic_open, atomic_write_bytes, atomic_write_text, check_output_dir, check_output_file,
 )  # fmt: skip
+from jaxquad.io.carmen import LaserLog, load_laser_log, read_carmen, read_laser_npz, save_laser_npz
 from jaxquad.io.jsonfile import json_ready, to_json, write_json
 from jaxquad.io.log import load_log, robot_log, save_log, validate_log
 from jaxquad.io.maps import OccupancyMap, load_map, save_map
@@ -14,5 +15,6 @@ __all__ = [
     "OBSERVER_KEYS", "OccupancyMap", "TumTrajectory", "atomic_dir", "atomic_open", "atomic_write_bytes",
     "atomic_write_text", "check_output_dir", "check_output_file", "load_log", "load_map", "observer_params_dict",
     "read_observer_params", "read_tum", "robot_log", "save_log", "save_map", "validate_log", "write_observer_params",
-    "write_tum", "json_ready", "to_json", "write_json",
+    "write_tum", "json_ready", "to_json", "write_json", "LaserLog", "load_laser_log", "read_carmen", "read_laser_npz",
+    "save_laser_npz",
 ]  # fmt: skip
