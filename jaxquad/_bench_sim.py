@@ -21,6 +21,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sim-chunk-frames", type=int, default=None,
                         help="camera frames per chunk for --sim (default: the most that fit in free memory, <= 30)")  # fmt: skip
     parser.add_argument("--sim-repeats", type=int, default=3, help="steady chunks timed per row (default 3)")
+    parser.add_argument("--sim-depth", choices=("both", "on", "off"), default="both",
+                        help="rows with the depth camera on, off or both (default both)")  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> dict:
@@ -35,7 +37,7 @@ def run(args: argparse.Namespace) -> dict:
         raise ValueError(f"--robots sizes must be >= 1, got {sizes}")
     rows = []
     for n in sizes:
-        for depth in (True, False):
+        for depth in {"both": (True, False), "on": (True,), "off": (False,)}[getattr(args, "sim_depth", "both")]:
             cfg = FleetConfig(
                 robot=args.sim_robot, world=args.sim_world, n_robots=n, n_worlds=min(n, 4),
                 depth=depth, frames_per_chunk=args.sim_chunk_frames,

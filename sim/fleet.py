@@ -226,18 +226,39 @@ _FUNCTIONS: dict = {}
 _COMPILED: dict = {}
 
 
+def _batched_chunk(fleet: Fleet, frames: int):
+    fn = functools.partial(fleet.functions.chunk, frames=frames)
+    # Outputs stay time-major (samples, N, ...): the scan's own layout, so no device-side transpose
+    # doubles the largest buffer (depth); the host reorders while copying.
+    return jax.jit(jax.vmap(fn, in_axes=(fleet.model_in_axes, 0, 0), out_axes=(0, 1)), donate_argnums=(2,))
+
+
 def _compile_chunk(fleet: Fleet, state_shape, frames: int):
     shapes = tuple((x.shape, str(x.dtype)) for x in jax.tree.leaves((fleet.model, fleet.setup, state_shape)))
     key = (fleet._structure, shapes, frames)
     if key not in _COMPILED:
-        fn = functools.partial(fleet.functions.chunk, frames=frames)
-        batched = jax.jit(jax.vmap(fn, in_axes=(fleet.model_in_axes, 0, 0)), donate_argnums=(2,))
-        _COMPILED[key] = batched.lower(fleet.model, fleet.setup, state_shape).compile()
+        _COMPILED[key] = _batched_chunk(fleet, frames).lower(fleet.model, fleet.setup, state_shape).compile()
     return _COMPILED[key]
 
 
+def _nbytes(tree) -> int:
+    """Bytes of a pytree of arrays or shape structs (PRNG keys count as two uint32 words)."""
+    total = 0
+    for x in jax.tree.leaves(tree):
+        shape, dtype = np.shape(x), getattr(x, "dtype", np.asarray(x).dtype)
+        itemsize = 8 if jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key) else np.dtype(dtype).itemsize
+        total += int(np.prod(shape)) * itemsize
+    return total
+
+
 def _bind(fleet: Fleet, qpos0: Array, gyro_adr: int, acc_adr: int) -> None:
-    """Attach the compiled init and chunk functions, with the chunk length planned (see sim.memory)."""
+    """Attach the compiled init and chunk functions, with the chunk length planned (see sim.memory).
+
+    The plan is made before compiling (compilation itself allocates buffers of the chunk's size on
+    a GPU, to autotune): outputs per camera frame are known exactly from the traced shapes, the
+    robots' state, model and setup from theirs; a length is chosen that keeps their sum within
+    `memory.PLAN_FRACTION` of the budget, then XLA's analysis of the compiled chunk is checked.
+    """
     cfg = fleet.config
     fleet._structure = (dataclasses.replace(cfg, seed=0, n_robots=1, n_worlds=1, style="calm", randomize=True,
                                             frames_per_chunk=None), gyro_adr, acc_adr)  # fmt: skip
@@ -248,23 +269,30 @@ def _bind(fleet: Fleet, qpos0: Array, gyro_adr: int, acc_adr: int) -> None:
     keys = jax.random.split(jax.random.key(cfg.seed), cfg.n_robots)
     fleet._init = lambda: init_jit(fleet.model, fleet.setup, qpos0, keys)
     state_shape = jax.eval_shape(fleet._init)
-    frames = cfg.frames_per_chunk or MAX_FRAMES_PER_CHUNK
-    compiled = _compile_chunk(fleet, state_shape, frames)
-    out_per_frame = sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(compiled.out_info[1])) // frames
-    budget, total = int(memory.MEMORY_FRACTION * memory.free_bytes()), memory.footprint_bytes(compiled)
-    if total > budget:
-        fit = memory.plan_frames(total, frames, out_per_frame, budget)
-        if cfg.frames_per_chunk is not None or fit < 1:
-            at_one = total - out_per_frame * (frames - 1)
-            n_max = memory.largest_fleet(cfg.n_robots, at_one, budget)
-            what = f"a chunk of {frames} frames" if cfg.frames_per_chunk is not None and fit >= 1 else "even a 1-frame chunk"
-            raise ValueError(
-                f"a fleet of {cfg.n_robots} robots does not fit: {what} needs {total / memory.GIB:.1f} GiB of the "
-                f"{budget / memory.GIB:.1f} GiB free; the largest fleet that fits has about {n_max} robots"
-            )
-        frames = fit
+    per_frame = _nbytes(jax.eval_shape(_batched_chunk(fleet, 1), fleet.model, fleet.setup, state_shape)[1])
+    fixed = 2 * _nbytes(state_shape) + _nbytes((fleet.model, fleet.setup))
+    budget = int(memory.MEMORY_FRACTION * memory.free_bytes())
+    want = cfg.frames_per_chunk or MAX_FRAMES_PER_CHUNK
+    frames = memory.plan_frames(fixed + per_frame * want, want, per_frame, int(memory.PLAN_FRACTION * budget))
+    total = fixed + per_frame * frames
+    if frames >= 1:
         compiled = _compile_chunk(fleet, state_shape, frames)
         total = memory.footprint_bytes(compiled)
+        if total > budget:  # temporaries larger than planned: shrink once by XLA's own figure
+            frames = memory.plan_frames(total, frames, per_frame, budget)
+            if frames >= 1:
+                compiled = _compile_chunk(fleet, state_shape, frames)
+                total = memory.footprint_bytes(compiled)
+    if frames < 1 or total > budget or (cfg.frames_per_chunk is not None and frames < cfg.frames_per_chunk):
+        # A 1-frame chunk's footprint: XLA's figure where a chunk was compiled, else the planned buffers
+        # with the planning headroom; both scale with the robot count.
+        at_one = total - per_frame * (frames - 1) if frames >= 1 else int((fixed + per_frame) / memory.PLAN_FRACTION)
+        n_max = memory.largest_fleet(cfg.n_robots, at_one, budget)
+        what = f"a chunk of {cfg.frames_per_chunk} frames" if cfg.frames_per_chunk and frames >= 1 else "even a 1-frame chunk"
+        raise ValueError(
+            f"a fleet of {cfg.n_robots} robots does not fit: {what} needs more than the "
+            f"{budget / memory.GIB:.1f} GiB free; the largest fleet that fits has about {n_max} robots"
+        )
     fleet.frames_per_chunk, fleet.chunk_bytes, fleet._chunk = frames, total, compiled
 
 
@@ -275,7 +303,8 @@ def init(fleet: Fleet) -> RobotState:
 
 def run_chunk(fleet: Fleet, state: RobotState) -> tuple[RobotState, dict[str, Array]]:
     """Advance every robot by one chunk; returns the new state (the old one is donated) and the
-    chunk's samples: per-robot arrays (N, samples_per_chunk, ...) and `depth` (N, frames, H, W)."""
+    chunk's samples, time-major: per-sample arrays (samples_per_chunk, N, ...) and `depth`
+    (frames, N, H, W)."""
     return fleet._chunk(fleet.model, fleet.setup, state)
 
 

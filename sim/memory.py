@@ -16,7 +16,10 @@ import jax
 
 # Share of the free memory a chunk may use: headroom for the allocator's fragmentation and the
 # host copies of the previous chunk's outputs.
-MEMORY_FRACTION = 0.85
+MEMORY_FRACTION = 0.75
+# Share of that budget the planned buffers (state, model, outputs) may take before compiling: the
+# rest is for the step's temporaries, which only the compiled chunk's analysis reveals.
+PLAN_FRACTION = 0.6
 GIB = 2.0**30
 
 

@@ -79,6 +79,8 @@ def make_functions(fleet, gyro_adr: int, acc_adr: int) -> FleetFunctions:
     foot_geoms = jnp.asarray(robot.foot_geom_ids)
     min_height = 0.5 * float(gait.body_height)
     rays = jnp.asarray(fleet.rays)
+    # Only static numbers are closed over, never `fleet` itself (its arrays would stay alive with the cache).
+    log_dt, logs_per_frame = fleet.log_dt, fleet.logs_per_frame
     cam_id = robot.camera_id
 
     def init_one(model, setup: RobotSetup, qpos, key) -> RobotState:
@@ -130,7 +132,7 @@ def make_functions(fleet, gyro_adr: int, acc_adr: int) -> FleetFunctions:
         key, k_imu, k_enc, k_tau = jax.random.split(s.key, 4)
         quat = d.qpos[qa + 3 : qa + 7]
         imu, (gyro, acc, quat_meas) = S.imu_step(
-            setup.noise, s.imu, k_imu, d.sensordata[gyro_adr : gyro_adr + 3], d.sensordata[acc_adr : acc_adr + 3], quat, fleet.log_dt
+            setup.noise, s.imu, k_imu, d.sensordata[gyro_adr : gyro_adr + 3], d.sensordata[acc_adr : acc_adr + 3], quat, log_dt
         )
         q, qd = S.encoders(setup.noise, k_enc, d.qpos[qpos_adr], d.qvel[dof_adr])
         tau = S.joint_torque(setup.noise, k_tau, d.actuator_force)
@@ -157,7 +159,7 @@ def make_functions(fleet, gyro_adr: int, acc_adr: int) -> FleetFunctions:
             s = jax.lax.fori_loop(0, cfg.log_every, lambda _, s: physics_step(model, setup, s), s)
             return sample(model, setup, s)
 
-        s, outs = jax.lax.scan(log_period, s, None, length=fleet.logs_per_frame)
+        s, outs = jax.lax.scan(log_period, s, None, length=logs_per_frame)
         if not cfg.depth:
             return s, outs
         d = s.data

@@ -75,14 +75,14 @@ def rollout(
         outs = jax.device_get(outs)
         for key, value in outs.items():
             if key not in arrays:
-                shape = (n, F if key == "depth" else T) + value.shape[2:]
+                shape = (n, F if key == "depth" else T) + value.shape[2:]  # robot-major on the host
                 if store is None:
                     arrays[key] = np.empty(shape, value.dtype)
                 else:
                     path = Path(store) / f"{key}.npy"
                     arrays[key] = np.lib.format.open_memmap(path, mode="w+", dtype=value.dtype, shape=shape)
-            step = value.shape[1]
-            arrays[key][:, c * step : (c + 1) * step] = value
+            step = value.shape[0]  # chunks come time-major: (samples or frames, N, ...)
+            arrays[key][:, c * step : (c + 1) * step] = np.swapaxes(value, 0, 1)
     state = jax.device_get(state)
     arrays.update(
         t=(np.arange(T) + 1) * fleet.log_dt,

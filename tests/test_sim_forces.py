@@ -26,7 +26,7 @@ def run():
     outs, ends = [], []
     for _ in range(_CHUNKS):
         state, out = run_chunk(fleet, state)
-        outs.append(jax.device_get(out))
+        outs.append({k: np.swapaxes(v, 0, 1) for k, v in jax.device_get(out).items()})  # time-major chunks
         # The chunk's last sample was logged from this state (copied before it is donated).
         d = state.data
         ends.append(jax.device_get(dict(qpos=d.qpos, qvel=d.qvel, qacc=d.qacc, ctrl=d.ctrl)))
