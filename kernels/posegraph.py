@@ -200,7 +200,8 @@ def optimize(graph: PoseGraph, params: SolverParams) -> tuple[PoseGraph, SolveIn
         normal = _linearize(current, width)
         dx, k = _pcg(current, normal, active, s.lam, params.cg_tol, params.cg_max_iterations)
         trial = s.poses + dx
-        trial = trial.at[:, 2].set(wrap_angle(trial[:, 2]))
+        # Wrap only moved nodes: wrapping is not exact in floating point, and fixed poses must not change.
+        trial = trial.at[:, 2].set(jnp.where(active, wrap_angle(trial[:, 2]), s.poses[:, 2]))
         cost = _cost(graph, trial, width)
         accept = cost < s.cost
         small = (s.cost - cost <= params.relative_tol * s.cost) | (cost <= params.absolute_tol)
