@@ -23,6 +23,7 @@ _SECTIONS: dict[str, tuple[str, str]] = {
     "kernels": ("jaxquad._bench_kernels", "contact observer, leg twist and scan kernels (default)"),
     "metrics": ("jaxquad._bench_metrics", "trajectory metrics"),
     "sim": ("jaxquad._bench_sim", "MJX simulation"),
+    "slam": ("jaxquad._bench_slam", "pose-graph optimization vs GTSAM, batched graphs, occupancy scan insertion"),
 }
 
 

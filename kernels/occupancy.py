@@ -78,8 +78,11 @@ def ray_cells(spec: GridSpec, row0, col0, row1, col1) -> tuple[Array, Array, Arr
     n = jnp.maximum(a_col, a_row)
     major, minor = jnp.where(x_major, a_col, a_row), jnp.where(x_major, a_row, a_col)
     k = jnp.arange(spec.max_steps, dtype=jnp.int32)
-    denom = 2 * jnp.maximum(major, 1)
-    offset = -jnp.floor_divide(major - 2 * k * minor, denom)  # ceil((2 k minor - major) / (2 major))
+    # offset = ceil(num / den) with num = 2 k minor - major, den = 2 major: a float estimate (integer
+    # division is slow on CPUs) made exact by one integer correction each way.
+    num, den = 2 * k * minor - major, 2 * jnp.maximum(major, 1)
+    offset = jnp.ceil(num.astype(jnp.float32) / den.astype(jnp.float32)).astype(jnp.int32)
+    offset = jnp.where((offset - 1) * den >= num, offset - 1, jnp.where(offset * den < num, offset + 1, offset))
     step_col = jnp.where(x_major, k, offset) * jnp.sign(d_col)
     step_row = jnp.where(x_major, offset, k) * jnp.sign(d_row)
     return row0 + step_row, col0 + step_col, n

@@ -80,7 +80,7 @@ def test_simulated_house_map_and_pose_errors():
             [[jnp.cos(pose[2]), jnp.sin(pose[2]), 0], [-jnp.sin(pose[2]), jnp.cos(pose[2]), 0], [0, 0, 1.0]]), boxes)
 
     ranges = jax.jit(jax.vmap(scan))(jnp.asarray(poses))
-    build = jax.jit(map_from_scans, static_argnums=0)
+    build = jax.jit(map_from_scans)
     good = map_scores(to_occupancy_map(spec, build(spec, OccupancyParams(range_max=jnp.asarray(8.0)), poses, ranges,
                                                      bearings)), truth)
     assert good.precision > 0.97 and good.phantom_fraction < 0.01 and good.free_coverage > 0.6

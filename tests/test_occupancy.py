@@ -11,8 +11,8 @@ from jaxquad.slam.mapping import fleet_maps, grid_spec, to_occupancy_map
 
 SPEC = GridSpec(rows=60, cols=80, resolution=0.1, origin_x=-4.0, origin_y=-3.0, max_range=5.0)
 PARAMS = OccupancyParams(range_min=jnp.asarray(0.2), range_max=jnp.asarray(4.0))
-_codes = jax.jit(scan_codes, static_argnums=0)
-_insert = jax.jit(insert_scan, static_argnums=0)
+_codes = jax.jit(scan_codes)
+_insert = jax.jit(insert_scan)
 
 
 def _bresenham(c0, r0, c1, r1):
@@ -106,7 +106,7 @@ def test_map_from_scans_vmaps_and_saves(tmp_path):
     ranges = jax.vmap(jax.vmap(room_ranges))(poses)
     grids = fleet_maps(spec, OccupancyParams(), poses, ranges, bearings)
     for k in range(2):
-        alone = jax.jit(map_from_scans, static_argnums=0)(spec, OccupancyParams(), poses[k], ranges[k], bearings)
+        alone = jax.jit(map_from_scans)(spec, OccupancyParams(), poses[k], ranges[k], bearings)
         np.testing.assert_array_equal(grids.log_odds[k], alone.log_odds)
         occ = to_occupancy_map(spec, jax.tree.map(lambda x: x[k], grids))
         wall = (np.abs(np.abs(occ.cell_centers()) - 2.0) < 0.05).any(-1) & (np.abs(occ.cell_centers()) < 2.05).all(-1)

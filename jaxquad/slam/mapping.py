@@ -41,4 +41,4 @@ def to_occupancy_map(spec: GridSpec, grid: OccupancyGrid) -> OccupancyMap:
 def fleet_maps(spec: GridSpec, params, poses, ranges, bearings, scan_mask=None) -> OccupancyGrid:
     """Maps of R robots at once: poses (R, T, 3), ranges (R, T, B), bearings (B,), scan_mask (R, T)."""
     fn = jax.vmap(map_from_scans, in_axes=(None, None, 0, 0, None, None if scan_mask is None else 0))
-    return jax.jit(fn, static_argnums=0)(spec, params, poses, ranges, bearings, scan_mask)
+    return jax.jit(fn)(spec, params, poses, ranges, bearings, scan_mask)
