@@ -65,7 +65,7 @@ def _single_graphs(sizes: list[int], gtsam_ok: bool) -> list[dict]:
             graph = build_graph(sg.initial, sg.edge_i, sg.edge_j, sg.measurement, sg.information)
             params = SolverParams()
             compile_s, run_ms = time_jitted(fn, graph, params, repeats=3, budget_s=5.0)
-            out, info = fn(graph, params)
+            _, info = fn(graph, params)
             row = {"case": f"manhattan {n} nodes", "n_edges": len(sg.edge_i), "compile_s": compile_s,
                    "solve_s": run_ms / 1e3, "iterations": int(info.iterations),
                    "initial_chi2": float(info.initial_chi2), "final_chi2": float(info.final_chi2)}

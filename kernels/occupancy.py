@@ -40,7 +40,7 @@ class GridSpec(eqx.Module):
     @property
     def max_steps(self) -> int:
         """Cells along the longest ray's major axis, end cell included (+2: start and end rounding)."""
-        return int(math.ceil(self.max_range / self.resolution)) + 2
+        return math.ceil(self.max_range / self.resolution) + 2
 
 
 class OccupancyParams(eqx.Module):
@@ -88,8 +88,13 @@ def ray_cells(spec: GridSpec, row0, col0, row1, col1) -> tuple[Array, Array, Arr
     return row0 + step_row, col0 + step_col, n
 
 
-def scan_codes(spec: GridSpec, params: OccupancyParams, pose: Float[Array, "3"], ranges: Float[Array, "b"],
-               bearings: Float[Array, "b"]) -> Array:
+def scan_codes(
+    spec: GridSpec,
+    params: OccupancyParams,
+    pose: Float[Array, "3"],
+    ranges: Float[Array, "b"],
+    bearings: Float[Array, "b"],
+) -> Array:
     """(rows, cols) int8 per-cell outcome of one scan at `pose` (x, y, theta of the sensor, world):
     0 untouched, 1 free, 2 occupied (see the module docstring for which rays count)."""
     range_max = jnp.minimum(params.range_max, spec.max_range)
@@ -110,8 +115,14 @@ def scan_codes(spec: GridSpec, params: OccupancyParams, pose: Float[Array, "3"],
     return codes.reshape(spec.rows, spec.cols)
 
 
-def insert_scan(spec: GridSpec, params: OccupancyParams, grid: OccupancyGrid, pose: Float[Array, "3"],
-                ranges: Float[Array, "b"], bearings: Float[Array, "b"]) -> OccupancyGrid:
+def insert_scan(
+    spec: GridSpec,
+    params: OccupancyParams,
+    grid: OccupancyGrid,
+    pose: Float[Array, "3"],
+    ranges: Float[Array, "b"],
+    bearings: Float[Array, "b"],
+) -> OccupancyGrid:
     """The grid after one scan at `pose` (log-odds update, clamped)."""
     codes = scan_codes(spec, params, pose, ranges, bearings)
     delta = jnp.where(codes == 2, params.l_occ, jnp.where(codes == 1, params.l_free, 0.0))
@@ -119,15 +130,21 @@ def insert_scan(spec: GridSpec, params: OccupancyParams, grid: OccupancyGrid, po
     return OccupancyGrid(log_odds, grid.observed | (codes > 0))
 
 
-def map_from_scans(spec: GridSpec, params: OccupancyParams, poses: Float[Array, "t 3"], ranges: Float[Array, "t b"],
-                   bearings: Float[Array, "b"], scan_mask: Bool[Array, "t"] | None = None) -> OccupancyGrid:
+def map_from_scans(
+    spec: GridSpec,
+    params: OccupancyParams,
+    poses: Float[Array, "t 3"],
+    ranges: Float[Array, "t b"],
+    bearings: Float[Array, "b"],
+    scan_mask: Bool[Array, "t"] | None = None,
+) -> OccupancyGrid:
     """A map from T scans at T poses from an empty grid (`lax.scan`); `scan_mask` skips scans."""
     mask = jnp.ones(poses.shape[0], bool) if scan_mask is None else scan_mask
 
     def step(grid, inputs):
         pose, r, keep = inputs
-        new = insert_scan(spec, params, grid, pose, r, bearings)
-        return jax.tree.map(lambda a, b: jnp.where(keep, a, b), new, grid), None
+        # A skipped scan reads NaN everywhere: every ray is ignored (cheaper than selecting whole grids).
+        return insert_scan(spec, params, grid, pose, jnp.where(keep, r, jnp.nan), bearings), None
 
     grid, _ = jax.lax.scan(step, init_grid(spec), (poses, ranges, mask))
     return grid

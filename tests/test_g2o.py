@@ -16,8 +16,14 @@ def _graph(n=60, seed=0, step=3, fixed=()):
     ids = 7 + step * np.arange(n)  # non-contiguous ids
     info = sg.information.copy()
     info[:, 0, 1] = info[:, 1, 0] = 12.5  # off-diagonal terms survive the round trip
-    return G2oGraph(ids, sg.initial, np.asarray(fixed, np.int64), np.stack([ids[sg.edge_i], ids[sg.edge_j]], 1),
-                    sg.measurement, info)
+    return G2oGraph(
+        ids,
+        sg.initial,
+        np.asarray(fixed, np.int64),
+        np.stack([ids[sg.edge_i], ids[sg.edge_j]], 1),
+        sg.measurement,
+        info,
+    )
 
 
 def test_round_trip_is_exact(tmp_path):

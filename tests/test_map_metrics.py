@@ -76,16 +76,24 @@ def test_simulated_house_map_and_pose_errors():
     d = jnp.stack([jnp.cos(bearings), jnp.sin(bearings), jnp.zeros_like(bearings)], -1)
 
     def scan(pose):
-        return ray_distance(jnp.asarray([pose[0], pose[1], 0.3]), d @ jnp.asarray(
-            [[jnp.cos(pose[2]), jnp.sin(pose[2]), 0], [-jnp.sin(pose[2]), jnp.cos(pose[2]), 0], [0, 0, 1.0]]), boxes)
+        return ray_distance(
+            jnp.asarray([pose[0], pose[1], 0.3]),
+            d
+            @ jnp.asarray(
+                [[jnp.cos(pose[2]), jnp.sin(pose[2]), 0], [-jnp.sin(pose[2]), jnp.cos(pose[2]), 0], [0, 0, 1.0]]
+            ),
+            boxes,
+        )
 
     ranges = jax.jit(jax.vmap(scan))(jnp.asarray(poses))
     build = jax.jit(map_from_scans)
-    good = map_scores(to_occupancy_map(spec, build(spec, OccupancyParams(range_max=jnp.asarray(8.0)), poses, ranges,
-                                                     bearings)), truth)
+    good = map_scores(
+        to_occupancy_map(spec, build(spec, OccupancyParams(range_max=jnp.asarray(8.0)), poses, ranges, bearings)), truth
+    )
     assert good.precision > 0.97 and good.phantom_fraction < 0.01 and good.free_coverage > 0.6
     assert good.recall > 0.5
     noisy = poses + np.random.default_rng(1).normal(size=poses.shape).astype(np.float32) * [0.15, 0.15, 0.05]
-    bad = map_scores(to_occupancy_map(spec, build(spec, OccupancyParams(range_max=jnp.asarray(8.0)), noisy, ranges,
-                                                    bearings)), truth)
+    bad = map_scores(
+        to_occupancy_map(spec, build(spec, OccupancyParams(range_max=jnp.asarray(8.0)), noisy, ranges, bearings)), truth
+    )
     assert bad.precision < good.precision - 0.1 and bad.phantom_fraction > good.phantom_fraction

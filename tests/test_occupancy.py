@@ -39,8 +39,10 @@ def _bresenham(c0, r0, c1, r1):
 
 def _codes_np(spec, pose, ranges, bearings, range_min, range_max):
     codes = np.zeros((spec.rows, spec.cols), np.int8)
-    cell = lambda x, y: (int(np.floor((y - spec.origin_y) / spec.resolution)),
-                         int(np.floor((x - spec.origin_x) / spec.resolution)))
+    cell = lambda x, y: (
+        int(np.floor((y - spec.origin_y) / spec.resolution)),
+        int(np.floor((x - spec.origin_x) / spec.resolution)),
+    )
     r0, c0 = cell(pose[0], pose[1])
     for r, b in zip(ranges, bearings):
         if np.isnan(r) or r == -np.inf or r < range_min:
@@ -108,7 +110,7 @@ def test_map_from_scans_vmaps_and_saves(tmp_path):
     for k in range(2):
         alone = jax.jit(map_from_scans)(spec, OccupancyParams(), poses[k], ranges[k], bearings)
         np.testing.assert_array_equal(grids.log_odds[k], alone.log_odds)
-        occ = to_occupancy_map(spec, jax.tree.map(lambda x: x[k], grids))
+        occ = to_occupancy_map(spec, jax.tree.map(lambda x, k=k: x[k], grids))
         wall = (np.abs(np.abs(occ.cell_centers()) - 2.0) < 0.05).any(-1) & (np.abs(occ.cell_centers()) < 2.05).all(-1)
         hits = occ.grid > 65
         assert hits.sum() > 100 and np.all(wall[hits])  # every occupied cell lies on a wall
@@ -119,3 +121,17 @@ def test_map_from_scans_vmaps_and_saves(tmp_path):
 def test_bad_grid_bounds():
     with pytest.raises(ValueError, match="xmax > xmin"):
         grid_spec((1.0, 0.0, 0.0, 1.0), 0.05, 4.0)
+
+
+def test_scan_mask_skips_scans():
+    spec = grid_spec((-2.0, -2.0, 2.0, 2.0), 0.1, 3.0)
+    rng = np.random.default_rng(3)
+    poses = jnp.asarray(rng.uniform(-1, 1, (6, 3)), jnp.float32)
+    ranges = jnp.asarray(rng.uniform(0.3, 3.5, (6, 90)), jnp.float32)
+    bearings = jnp.linspace(-jnp.pi, jnp.pi, 90, endpoint=False)
+    keep = np.array([True, False, True, True, False, True])
+    build = jax.jit(map_from_scans)
+    masked = build(spec, PARAMS, poses, ranges, bearings, jnp.asarray(keep))
+    kept = build(spec, PARAMS, poses[keep], ranges[keep], bearings)
+    np.testing.assert_array_equal(masked.log_odds, kept.log_odds)
+    np.testing.assert_array_equal(masked.observed, kept.observed)

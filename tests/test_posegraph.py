@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
+from jaxquad.kernels import chain_precond
 from jaxquad.kernels.posegraph import ROBUST_CAUCHY, ROBUST_HUBER, _rho_and_weight
 from jaxquad.slam import SolverParams, build_graph, chi2, edge_error, manhattan_graph, optimize, stack_graphs
 
@@ -46,8 +47,9 @@ def _gtsam_solve(poses, ei, ej, meas, info, fixed, robust=None):
     params.setAbsoluteErrorTol(1e-12)
     params.setMaxIterations(200)
     result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-    return np.array([[result.atPose2(k).x(), result.atPose2(k).y(), result.atPose2(k).theta()]
-                     for k in range(len(poses))])
+    return np.array(
+        [[result.atPose2(k).x(), result.atPose2(k).y(), result.atPose2(k).theta()] for k in range(len(poses))]
+    )
 
 
 def _pose_diff(a, b):
@@ -131,21 +133,31 @@ def test_robust_kernels_reject_wrong_loop_closures():
     closure = np.abs(sg.edge_j - sg.edge_i) != 1
     keep = ~sg.outlier
     with jax.enable_x64(True):
-        clean = _optimize(build_graph(sg.initial, sg.edge_i[keep], sg.edge_j[keep], sg.measurement[keep],
-                                      sg.information[keep]), SolverParams())[0].poses
-        plain = _optimize(build_graph(sg.initial, sg.edge_i, sg.edge_j, sg.measurement, sg.information),
-                          SolverParams())[0].poses
+        clean = _optimize(
+            build_graph(sg.initial, sg.edge_i[keep], sg.edge_j[keep], sg.measurement[keep], sg.information[keep]),
+            SolverParams(),
+        )[0].poses
+        plain = _optimize(
+            build_graph(sg.initial, sg.edge_i, sg.edge_j, sg.measurement, sg.information), SolverParams()
+        )[0].poses
         kinds = np.where(closure, "cauchy", "none")
         g = build_graph(sg.initial, sg.edge_i, sg.edge_j, sg.measurement, sg.information, robust=kinds)
-        robust, info = _optimize(g, SolverParams(robust_width=jnp.asarray(3.0), relative_tol=jnp.asarray(1e-10)))
+        robust, _ = _optimize(g, SolverParams(robust_width=jnp.asarray(3.0), relative_tol=jnp.asarray(1e-10)))
         assert _pose_diff(plain, clean) > 3.0  # wrong closures pull the plain solution far off
         # Cauchy keeps a small pull (weight d^2 / s) from the wrong closures: near, not equal to, clean.
         assert _pose_diff(robust.poses, clean) < 0.15
         # GTSAM with the same Cauchy kernel (its rho is half of g2o's: the same minimizer) agrees up to the
         # wrong closures' large errors, where GTSAM's Logmap error and g2o's differ (1 cm measured).
         cauchy = gtsam.noiseModel.mEstimator.Cauchy.Create(3.0)
-        ref = _gtsam_solve(sg.initial, sg.edge_i, sg.edge_j, sg.measurement, sg.information,
-                           np.arange(200) == 0, robust=[cauchy if c else None for c in closure])
+        ref = _gtsam_solve(
+            sg.initial,
+            sg.edge_i,
+            sg.edge_j,
+            sg.measurement,
+            sg.information,
+            np.arange(200) == 0,
+            robust=[cauchy if c else None for c in closure],
+        )
         assert _pose_diff(robust.poses, ref) < 0.03
 
 
@@ -154,14 +166,51 @@ def test_vmap_over_padded_graphs_equals_each_alone():
     graphs = [manhattan_graph(n, seed=s) for n, s in sizes]
     n_cap, m_cap = 128, max(len(g.edge_i) for g in graphs) + 5
     with jax.enable_x64(True):
-        padded = [build_graph(g.initial, g.edge_i, g.edge_j, g.measurement, g.information, node_capacity=n_cap,
-                              edge_capacity=m_cap) for g in graphs]
+        padded = [
+            build_graph(
+                g.initial, g.edge_i, g.edge_j, g.measurement, g.information, node_capacity=n_cap, edge_capacity=m_cap
+            )
+            for g in graphs
+        ]
         params = SolverParams(relative_tol=jnp.asarray(1e-10))
         batch, infos = jax.jit(jax.vmap(optimize, in_axes=(0, None)))(stack_graphs(padded), params)
         for k, (g, (n, _)) in enumerate(zip(graphs, sizes)):
-            alone, info = _optimize(build_graph(g.initial, g.edge_i, g.edge_j, g.measurement, g.information),
-                                    params)
+            alone, info = _optimize(build_graph(g.initial, g.edge_i, g.edge_j, g.measurement, g.information), params)
             assert _pose_diff(batch.poses[k, :n], alone.poses) < 1e-7
             np.testing.assert_allclose(float(infos.final_chi2[k]), float(info.final_chi2), rtol=1e-9)
             assert bool(infos.converged[k])
             assert np.all(np.asarray(batch.poses[k, n:]) == 0.0)  # padded slots stay untouched
+
+
+def test_tridiagonal_preconditioner_solves_exactly():
+    rng = np.random.default_rng(2)
+    n = 9
+    U = rng.normal(size=(n, 3, 3))
+    U[0] = 0.0
+    U[4] = 0.0  # a chain break
+    T = np.zeros((3 * n, 3 * n))
+    for k in range(1, n):
+        T[3 * (k - 1) : 3 * k, 3 * k : 3 * k + 3] = U[k]
+        T[3 * k : 3 * k + 3, 3 * (k - 1) : 3 * k] = U[k].T
+    G = rng.normal(size=(n, 3, 3))
+    D = G @ np.swapaxes(G, 1, 2) + 8.0 * np.eye(3)  # diagonally dominant: T is positive definite
+    for k in range(n):
+        T[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = D[k]
+    r = rng.normal(size=(n, 3))
+    with jax.enable_x64(True):
+        z = jax.jit(lambda D, U, r: chain_precond.solve(chain_precond.factor(D, U), r))(D, U, r)
+    np.testing.assert_allclose(np.asarray(z).ravel(), np.linalg.solve(T, r.ravel()), rtol=1e-10, atol=1e-12)
+
+
+def test_preconditioners_reach_the_same_optimum():
+    sg = manhattan_graph(150, seed=8)
+    with jax.enable_x64(True):
+        g = build_graph(sg.initial, sg.edge_i, sg.edge_j, sg.measurement, sg.information)
+        outs = [
+            jax.jit(optimize)(
+                g, SolverParams(relative_tol=jnp.asarray(1e-10), cg_tol=jnp.asarray(1e-8), preconditioner=pc)
+            )
+            for pc in ("chain", "block_jacobi")
+        ]
+        assert _pose_diff(outs[0][0].poses, outs[1][0].poses) < 1e-7
+        assert int(outs[0][1].cg_iterations) < int(outs[1][1].cg_iterations)

@@ -31,8 +31,10 @@ def build_graph(
     n, m = len(poses), len(edge_i)
     n_cap, m_cap = node_capacity or n, edge_capacity or m
     if poses.shape != (n, 3) or np.shape(measurement) != (m, 3) or np.shape(information) != (m, 3, 3):
-        raise ValueError(f"pose graph shapes: poses {poses.shape}, measurement {np.shape(measurement)}, "
-                         f"information {np.shape(information)} (expected (N, 3), (M, 3), (M, 3, 3))")
+        raise ValueError(
+            f"pose graph shapes: poses {poses.shape}, measurement {np.shape(measurement)}, "
+            f"information {np.shape(information)} (expected (N, 3), (M, 3), (M, 3, 3))"
+        )
     if n_cap < n or m_cap < m:
         raise ValueError(f"capacity ({n_cap} nodes, {m_cap} edges) below the graph's size ({n}, {m})")
     ij = np.stack([np.asarray(edge_i), np.asarray(edge_j)])
@@ -43,7 +45,7 @@ def build_graph(
     kinds = np.broadcast_to(np.asarray(robust), (m,))
     unknown = set(kinds.tolist()) - set(ROBUST_KINDS)
     if unknown:
-        raise ValueError(f"unknown robust kernel {sorted(unknown)[0]!r}; choose from {sorted(ROBUST_KINDS)}")
+        raise ValueError(f"unknown robust kernel {min(unknown)!r}; choose from {sorted(ROBUST_KINDS)}")
 
     def pad(a, cap, fill=0):
         a = np.asarray(a)

@@ -13,8 +13,10 @@ def grid_spec(bounds: tuple[float, float, float, float], resolution: float, max_
     """The grid covering `bounds` (xmin, ymin, xmax, ymax; m) with square cells of `resolution` m."""
     xmin, ymin, xmax, ymax = bounds
     if not (xmax > xmin and ymax > ymin and resolution > 0 and max_range > 0):
-        raise ValueError(f"grid needs xmax > xmin, ymax > ymin and positive sizes, got bounds {bounds}, "
-                         f"resolution {resolution}, max_range {max_range}")
+        raise ValueError(
+            f"grid needs xmax > xmin, ymax > ymin and positive sizes, got bounds {bounds}, "
+            f"resolution {resolution}, max_range {max_range}"
+        )
     cols, rows = int(np.ceil((xmax - xmin) / resolution)), int(np.ceil((ymax - ymin) / resolution))
     return GridSpec(rows, cols, float(resolution), float(xmin), float(ymin), float(max_range))
 
@@ -31,8 +33,10 @@ def to_occupancy_map(spec: GridSpec, grid: OccupancyGrid) -> OccupancyMap:
     """-1 where no ray went, else round(100 p) with p = 1 / (1 + exp(-log_odds)); saves with `save_map`."""
     log_odds, observed = np.asarray(grid.log_odds, np.float64), np.asarray(grid.observed)
     if log_odds.shape != (spec.rows, spec.cols):
-        raise ValueError(f"grid shape {log_odds.shape} is not the spec's ({spec.rows}, {spec.cols}); "
-                         "convert one robot's grid at a time")
+        raise ValueError(
+            f"grid shape {log_odds.shape} is not the spec's ({spec.rows}, {spec.cols}); "
+            "convert one robot's grid at a time"
+        )
     p = 1.0 / (1.0 + np.exp(-log_odds))
     values = np.where(observed, np.rint(100.0 * p), -1).astype(np.int8)
     return OccupancyMap(values, spec.resolution, (spec.origin_x, spec.origin_y, 0.0))

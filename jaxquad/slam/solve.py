@@ -22,12 +22,26 @@ def g2o_pose_graph(g2o: G2oGraph, robust: str = "none", robust_edges: str = "clo
     kinds = np.full(len(ij), robust, object)
     if robust_edges == "closures":
         kinds[np.abs(ij[:, 1] - ij[:, 0]) == 1] = "none"
-    return build_graph(g2o.poses, ij[:, 0], ij[:, 1], g2o.measurement, g2o.information, fixed=g2o.fixed_mask(),
-                       robust=kinds, dtype=dtype)
+    return build_graph(
+        g2o.poses,
+        ij[:, 0],
+        ij[:, 1],
+        g2o.measurement,
+        g2o.information,
+        fixed=g2o.fixed_mask(),
+        robust=kinds,
+        dtype=dtype,
+    )
 
 
-def optimize_g2o(g2o: G2oGraph, *, robust: str = "none", robust_width: float = 1.0, robust_edges: str = "closures",
-                 max_iterations: int = 100) -> tuple[G2oGraph, dict, dict]:
+def optimize_g2o(
+    g2o: G2oGraph,
+    *,
+    robust: str = "none",
+    robust_width: float = 1.0,
+    robust_edges: str = "closures",
+    max_iterations: int = 100,
+) -> tuple[G2oGraph, dict, dict]:
     """(optimized graph, solve info as plain numbers, {"compile_s", "solve_s"}). Runs in the current
     dtype setting (call inside `jax.enable_x64(True)` for float64, as the CLI does)."""
     graph = g2o_pose_graph(g2o, robust, robust_edges)
