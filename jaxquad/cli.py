@@ -13,7 +13,7 @@ _COMMANDS: dict[str, tuple[str, str]] = {
     "eval": ("jaxquad.metrics.cli", "ATE/ARE/APE/RPE of an estimated TUM trajectory against a reference, as evo"),
     "estimate": ("jaxquad.estimate.cli", "contacts and leg-inertial odometry over a robot log (TUM, npz, JSON summary)"),
     "tune": ("jaxquad.estimate.tune_cli", "tune the contact observer's gains and thresholds on a fleet log (grid search or gradient)"),
-    "posegraph": ("jaxquad.slam.posegraph_cli", "optimize a 2D g2o pose graph (Levenberg-Marquardt, sparse CG); write it back"),
+    "posegraph": ("jaxquad.slam.posegraph_cli", "optimize a 2D g2o pose graph (sparse Levenberg-Marquardt)"),
     "simulate": ("jaxquad.sim.cli", "run an MJX fleet of robots in generated worlds; write the fleet log, ground-truth TUM and maps"),
 }
 
