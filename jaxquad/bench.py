@@ -26,6 +26,7 @@ _SECTIONS: dict[str, tuple[str, str]] = {
     "frontend": ("jaxquad._bench_slam_frontend", "SLAM front end: scan matching and likelihood grids"),
     "nav": ("jaxquad._bench_nav", "navigation: MPPI tick, costmap, global planner, frontier choice"),
     "localize": ("jaxquad._bench_localize", "AMCL update: R robots x P particles x B beams"),
+    "slam": ("jaxquad._bench_slam", "pose-graph optimization vs GTSAM, batched graphs, occupancy scan insertion"),
 }
 
 

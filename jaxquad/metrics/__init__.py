@@ -1,5 +1,5 @@
 """Trajectory evaluation with the definitions of evo (association, Umeyama alignment, APE, RPE) and
-KITTI's segment drift (t_rel %, r_rel deg/m)."""
+KITTI's segment drift (t_rel %, r_rel deg/m), and occupancy-map scores against a ground-truth map."""
 
 from jaxquad.metrics._align import ALIGN_MODES, Alignment, align, umeyama
 from jaxquad.metrics._ape import PoseErrors, ape, pose_errors
@@ -13,6 +13,7 @@ from jaxquad.metrics._evaluate import (
     evaluate_batch,
     evaluate_poses,
 )
+from jaxquad.metrics._maps import MapScores, map_scores, resample_map
 from jaxquad.metrics._result import EvalResult
 from jaxquad.metrics._rpe import Pairs, pairs_by_frames, pairs_by_path, pairs_by_path_all, pairs_for, rpe
 from jaxquad.metrics._scan_map import scan_map_hits
@@ -24,5 +25,5 @@ __all__ = [
     "EvalResult", "Evaluation", "Pairs", "PoseErrors", "Stats", "align", "ape", "associate", "evaluate",
     "evaluate_batch", "evaluate_drift", "evaluate_poses", "pairs_by_frames", "pairs_by_path", "pairs_by_path_all",
     "pairs_for", "pose_errors", "rotation_angle", "rotation_from_quat_xyzw", "rpe", "scan_map_hits", "segment_drift",
-    "segment_pairs", "statistics", "umeyama",
+    "segment_pairs", "statistics", "umeyama", "MapScores", "map_scores", "resample_map",
 ]

@@ -1,0 +1,84 @@
+"""Occupancy-map quality against a ground-truth map, with a tolerance of one cell.
+
+Classes: a cell is occupied when its value exceeds 65 (the trinary `occupied_thresh` 0.65), free when
+0 <= value < 19.6 (`free_thresh` 0.196), unknown otherwise (-1 included). "Within one cell" means
+within the 3 x 3 neighbourhood (Chebyshev distance <= 1).
+
+  precision: estimated occupied cells within one cell of a true occupied cell / estimated occupied
+  recall: true *visible* occupied cells (those with a true free 4-neighbour: the interior of a solid
+          box can never be seen) within one cell of an estimated occupied cell / true visible occupied
+  iou: tp / (tp + fp + fn) with tp, fp the matched and unmatched estimated occupied cells and fn the
+       unmatched true visible occupied cells
+  free_coverage: true free cells the estimate calls free / true free cells
+  phantom_fraction: estimated occupied cells lying in true free space farther than one cell from
+          any true occupied cell / estimated occupied cells ("phantom walls")
+
+The estimate is compared on the truth's cells: when the two grids differ (origin, resolution or
+shape), each true cell centre takes the value of the estimate's cell containing it (nearest-cell
+resampling; outside the estimate: unknown). Maps with a non-zero yaw are refused.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy.ndimage import binary_dilation
+
+from jaxquad.io.maps import FREE_THRESH, OCCUPIED_THRESH, OccupancyMap
+
+_NEIGHBOURS = np.ones((3, 3), bool)
+
+
+@dataclasses.dataclass(frozen=True)
+class MapScores:
+    precision: float
+    recall: float
+    iou: float
+    free_coverage: float
+    phantom_fraction: float
+    n_estimated_occupied: int
+    n_true_visible_occupied: int
+
+
+def resample_map(occ: OccupancyMap, like: OccupancyMap) -> OccupancyMap:
+    """`occ`'s values on the cells of `like` (nearest cell; unknown outside `occ`)."""
+    for m in (occ, like):
+        if m.origin[2] != 0.0:
+            raise ValueError(f"map comparison needs yaw 0 origins, got yaw {m.origin[2]}")
+    if occ.grid.shape == like.grid.shape and occ.resolution == like.resolution and occ.origin == like.origin:
+        return occ
+    rc = occ.world_to_cell(like.cell_centers())
+    rows, cols = occ.grid.shape
+    inside = (rc[..., 0] >= 0) & (rc[..., 0] < rows) & (rc[..., 1] >= 0) & (rc[..., 1] < cols)
+    values = np.full(like.grid.shape, -1, np.int8)
+    values[inside] = occ.grid[rc[inside][:, 0], rc[inside][:, 1]]
+    return OccupancyMap(values, like.resolution, like.origin)
+
+
+def _ratio(num: int, den: int) -> float:
+    return float(num) / den if den else float("nan")
+
+
+def map_scores(estimate: OccupancyMap, truth: OccupancyMap) -> MapScores:
+    """Scores of `estimate` against `truth` (see the module docstring); NaN where a ratio has no cells."""
+    est = resample_map(estimate, truth).grid.astype(np.int16)
+    true = truth.grid.astype(np.int16)
+    est_occ, est_free = est > 100 * OCCUPIED_THRESH, (est >= 0) & (est < 100 * FREE_THRESH)
+    true_occ, true_free = true > 100 * OCCUPIED_THRESH, (true >= 0) & (true < 100 * FREE_THRESH)
+    cross = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], bool)
+    visible = true_occ & binary_dilation(true_free, cross)
+    near_true = binary_dilation(true_occ, _NEIGHBOURS)
+    near_est = binary_dilation(est_occ, _NEIGHBOURS)
+    tp = int((est_occ & near_true).sum())
+    fp = int((est_occ & ~near_true).sum())
+    fn = int((visible & ~near_est).sum())
+    return MapScores(
+        precision=_ratio(tp, tp + fp),
+        recall=_ratio(int((visible & near_est).sum()), int(visible.sum())),
+        iou=_ratio(tp, tp + fp + fn),
+        free_coverage=_ratio(int((true_free & est_free).sum()), int(true_free.sum())),
+        phantom_fraction=_ratio(int((est_occ & true_free & ~near_true).sum()), int(est_occ.sum())),
+        n_estimated_occupied=int(est_occ.sum()),
+        n_true_visible_occupied=int(visible.sum()),
+    )
