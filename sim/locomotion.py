@@ -330,6 +330,7 @@ def gait_step(
     command = jnp.where(ok, command, 0.0)
 
     # Base state (free joint: world position, wxyz quaternion; world linear, body angular velocity).
+    R_world_base = SO3(qpos[3:7]).as_matrix()
     roll, pitch = roll_pitch(qpos[3:7])
     yaw = yaw_of(qpos[3:7])
     cy, sy = jnp.cos(yaw), jnp.sin(yaw)
