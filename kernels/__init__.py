@@ -2,4 +2,6 @@
 from jaxquad.kernels.contact import ContactEstimate, ContactObserver, ObserverParams, ObserverState
 from jaxquad.kernels.raycast import Boxes, cast_depth, pinhole_rays, ray_distance
 from jaxquad.kernels.scan import CameraIntrinsics, Scan, baseline_scan, level_scan, stabilized_scan
-from jaxquad.kernels.twist import Twist, body_twist
+from jaxquad.kernels.floor import FloorParams, FloorState, floor_init, floor_step, stance_height
+from jaxquad.kernels.robust_twist import RobustTwist, robust_body_twist, robust_weight
+from jaxquad.kernels.twist import Twist, body_twist, rolling_contact
