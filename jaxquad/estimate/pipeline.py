@@ -8,9 +8,12 @@ Per sample k (dt = t_k - t_{k-1}):
      thresholding their z components, with the model's joint damping and friction in tau_bar:
      `jaxquad.dynamics.momentum_terms`);
   4. foot positions and velocities in the base frame from the MJX model (jaxquad.dynamics:
-     forward kinematics and v_base_foot = J(q) qd);
-  5. the twist least squares (kernels.body_twist) on the stance feet and the gyro;
-  6. the pose: the twist of sample k-1 integrated over dt on SE(3), orientation from step 2.
+     forward kinematics and v_base_foot = J(q) qd), moved to the contact points of the round feet
+     rolling on the floor (kernels.rolling_contact, `PipelineConfig.rolling`);
+  5. the twist least squares on the stance feet and the gyro, reweighted against slipping feet
+     (kernels.robust_body_twist, `PipelineConfig.robust`), with its covariance and slip flags;
+  6. the pose: the twist of sample k-1 integrated over dt on SE(3), orientation from step 2, height
+     fused with the floor under the stance feet (kernels.floor, `PipelineConfig.floor`).
 
 Bad data never reaches the trajectory as NaN; each case is flagged per sample (`Flags`):
 non-finite joint readings hold the joint's last value; non-finite gyro/acc hold the attitude;
@@ -74,7 +77,7 @@ class PipelineParams(eqx.Module):
             fall_tilt_rad=jnp.asarray(1.2),
             torque_saturation=jnp.asarray(0.99),
             robust_scale=jnp.asarray(0.1),
-            sigma_prior=jnp.asarray(0.1),
+            sigma_prior=jnp.asarray(0.06),
             prior_dof=jnp.asarray(3.0),
             floor=flr.FloorParams.default(),
         )

@@ -3,7 +3,8 @@
 Output folder, per robot i (`robot_000`, ... for a fleet, `robot` for a single log):
   <name>.tum        leg-inertial odometry, `t x y z qx qy qz qw` at every sample (log time, s)
   <name>.npz        t, p_world_base, q_world_base (wxyz), v_base, omega_base, contact,
-                    contact_soft, force_z, force_z_filtered (N), qd, and one bool (T,) array per flag
+                    contact_soft, force_z, force_z_filtered (N), qd, cov_v_base (T, 3, 3) (m/s)^2,
+                    slip (T, 4) bool (stance feet the robust twist rejected), and one bool (T,) array per flag
                     (flag_bad_joints, flag_bad_imu, flag_bad_torque, flag_gap, flag_no_stance,
                     flag_fallen)
   <name>_scans.npz  when the log has depth: depth_t, ranges_stabilized and ranges_baseline (F, W) m
@@ -66,8 +67,12 @@ def eqx_replace(module, name: str, value):
     return eqx.tree_at(lambda m: getattr(m, name), module, value)
 
 
-def estimate_log(log: dict, contacts: str = "truth", params=None, robot=None):
-    """Run the pipeline over a log dict; returns (robot, config, Estimate as NumPy, N robots)."""
+def estimate_log(log: dict, contacts: str = "truth", params=None, robot=None, odometry: dict | None = None):
+    """Run the pipeline over a log dict; returns (robot, config, Estimate as NumPy, N robots).
+
+    odometry: leg-odometry choices of `PipelineConfig` (rolling, robust, robust_iters, floor) to override."""
+    import dataclasses
+
     import jax
 
     from jaxquad.estimate import pipeline
@@ -75,6 +80,7 @@ def estimate_log(log: dict, contacts: str = "truth", params=None, robot=None):
 
     robot = load(str(np.asarray(log["robot"]))) if robot is None else robot
     inputs, config = pipeline.inputs_from_log(robot, log, contacts)
+    config = dataclasses.replace(config, **(odometry or {}))
     params = load_params(None, len(robot.foot_names), contacts) if params is None else params
     out = pipeline.estimate_fleet(robot, config, params, inputs)
     return robot, config, jax.tree.map(np.asarray, out)
@@ -114,18 +120,19 @@ def _trajectory_metrics(t, est, gt, valid) -> dict:
 
 def run_estimate(
     log_path, out_dir, contacts: str = "truth", params_path=None, progress=None,
-    band_height: int = 5, range_min: float = 0.2, range_max: float = 8.0,
+    band_height: int = 5, range_min: float = 0.2, range_max: float = 8.0, odometry: dict | None = None,
 ) -> dict:  # fmt: skip
     """Estimate over the log at `log_path`, write the output folder, return the summary dict.
 
-    band_height (px) and range_min/range_max (m) configure the scans of logs with depth."""
+    band_height (px) and range_min/range_max (m) configure the scans of logs with depth; odometry as
+    `estimate_log`."""
     from jaxquad.io import TumTrajectory, load_log, write_tum
     from jaxquad.robots import load
 
     log = load_log(log_path)
     robot = load(str(np.asarray(log["robot"])))
     params = load_params(params_path, len(robot.foot_names), contacts)
-    _, config, out = estimate_log(log, contacts, params, robot)
+    _, config, out = estimate_log(log, contacts, params, robot, odometry)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t = np.asarray(log["t"], np.float64)
@@ -136,7 +143,8 @@ def run_estimate(
     for i in range(n):
         name = f"robot_{i:03d}" if fleet else "robot"
         est = {k: getattr(out, k)[i] for k in ("p_world_base", "q_world_base", "v_base", "omega_base", "contact",
-                                               "contact_soft", "force_z", "force_z_filtered", "qd")}  # fmt: skip
+                                               "contact_soft", "force_z", "force_z_filtered", "qd",
+                                               "cov_v_base", "slip")}  # fmt: skip
         flags = {f: getattr(out.flags, f)[i] for f in _FLAGS}
         q = est["q_world_base"]
         write_tum(out_dir / f"{name}.tum", TumTrajectory(t, est["p_world_base"], q[:, [1, 2, 3, 0]]))
