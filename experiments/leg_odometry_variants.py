@@ -82,29 +82,65 @@ def run(log_path: str, contacts: str, variant: str, params_path: str | None) -> 
     inputs, config = pipeline.inputs_from_log(robot, log, contacts)
     config = dataclasses.replace(config, **VARIANTS[variant])
     params = load_params(params_path, len(robot.foot_names), contacts)
-    out = jax.tree.map(np.asarray, pipeline.estimate_fleet(robot, config, params, inputs))
+    out = jax.tree.map(
+        np.asarray, pipeline.estimate_fleet(robot, config, params, inputs)
+    )
     t = np.asarray(log["t"], np.float64)
     rows = []
     for i in range(out.p_world_base.shape[0]):
         if bool(np.asarray(log["fallen"])[i]):
             continue
-        est = {k: getattr(out, k)[i] for k in ("p_world_base", "q_world_base", "v_base", "cov_v_base")}
+        est = {
+            k: getattr(out, k)[i]
+            for k in ("p_world_base", "q_world_base", "v_base", "cov_v_base")
+        }
         est["no_stance"] = out.flags.no_stance[i]
         valid = ~out.flags.fallen[i]
         rows.append(score_robot(t, est, np.asarray(log["gt_pose"])[i], valid))
     mean = {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
-    return {"log": log_path, "robot": robot.name, "contacts": contacts, "variant": variant, "robots": len(rows)} | mean
+    return {
+        "log": log_path,
+        "robot": robot.name,
+        "contacts": contacts,
+        "variant": variant,
+        "robots": len(rows),
+    } | mean
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("logs", nargs="+", help="fleet logs (.npz) with gt_pose")
-    ap.add_argument("--contacts", nargs="+", default=["truth"], help="contact sources (default truth)")
-    ap.add_argument("--params", default=None, help="observer parameter file for observer contacts (default: paper)")
-    ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS), help="default: all")
-    ap.add_argument("--json", default=None, help="also write the rows to this JSON file")
+    ap.add_argument(
+        "--contacts",
+        nargs="+",
+        default=["truth"],
+        help="contact sources (default truth)",
+    )
+    ap.add_argument(
+        "--params",
+        default=None,
+        help="observer parameter file for observer contacts (default: paper)",
+    )
+    ap.add_argument(
+        "--variants",
+        nargs="+",
+        default=list(VARIANTS),
+        choices=list(VARIANTS),
+        help="default: all",
+    )
+    ap.add_argument(
+        "--json", default=None, help="also write the rows to this JSON file"
+    )
     args = ap.parse_args(argv)
-    keys = ("drift_pct", "path_ratio", "ate_m", "height_err_end_m", "nees_mean", "nees_in_95", "v_rmse")
+    keys = (
+        "drift_pct",
+        "path_ratio",
+        "ate_m",
+        "height_err_end_m",
+        "nees_mean",
+        "nees_in_95",
+        "v_rmse",
+    )
     print("| log | robot | contacts | variant | n | " + " | ".join(keys) + " |")
     print("|---|---|---|---|---:|" + "---:|" * len(keys))
     rows = []
@@ -114,7 +150,10 @@ def main(argv=None) -> int:
                 r = run(log, contacts, variant, args.params)
                 rows.append(r)
                 vals = " | ".join(f"{r[k]:.3f}" for k in keys)
-                print(f"| {log} | {r['robot']} | {contacts} | {variant} | {r['robots']} | {vals} |", flush=True)
+                print(
+                    f"| {log} | {r['robot']} | {contacts} | {variant} | {r['robots']} | {vals} |",
+                    flush=True,
+                )
     if args.json:
         from jaxquad.io.atomic import atomic_write_text
 

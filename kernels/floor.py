@@ -22,8 +22,12 @@ from jaxtyping import Array, Bool, Float
 class FloorParams(eqx.Module):
     """Noise levels of the height filter (traced leaves)."""
 
-    process_std: Float[Array, ""]  # m/sqrt(s): random walk of the integrated vertical velocity
-    meas_std: Float[Array, ""]  # m: one foot's height measurement (ground compliance, kinematics)
+    process_std: Float[
+        Array, ""
+    ]  # m/sqrt(s): random walk of the integrated vertical velocity
+    meas_std: Float[
+        Array, ""
+    ]  # m: one foot's height measurement (ground compliance, kinematics)
 
     @classmethod
     def default(cls) -> "FloorParams":
@@ -37,14 +41,23 @@ class FloorState(eqx.Module):
     has_floor: Bool[Array, ""]  # whether floor_z has been set by a first measurement
 
 
-def floor_init(z0: Float[Array, ""], var0: float | Float[Array, ""] = 0.0) -> FloorState:
+def floor_init(
+    z0: Float[Array, ""], var0: float | Float[Array, ""] = 0.0
+) -> FloorState:
     """Start at the known height z0 (m) with variance var0 (m^2); the floor is set by the first stance."""
     z0 = jnp.asarray(z0)
-    return FloorState(z=z0, var=jnp.asarray(var0, z0.dtype), floor_z=jnp.zeros_like(z0), has_floor=jnp.asarray(False))
+    return FloorState(
+        z=z0,
+        var=jnp.asarray(var0, z0.dtype),
+        floor_z=jnp.zeros_like(z0),
+        has_floor=jnp.asarray(False),
+    )
 
 
 def stance_height(
-    p_contact_base: Float[Array, "F 3"], R_world_base: Float[Array, "3 3"], weights: Float[Array, "F"]
+    p_contact_base: Float[Array, "F 3"],
+    R_world_base: Float[Array, "3 3"],
+    weights: Float[Array, "F"],
 ) -> tuple[Float[Array, ""], Float[Array, ""]]:
     """(h, n): base height above the floor (m) from the stance feet's contact points (base frame),
     and the stance weight n behind it (0: no measurement, h = 0). Swing feet are never read."""
@@ -76,4 +89,9 @@ def floor_step(
     r = params.meas_std**2 / jnp.where(measured, n, 1.0)
     gain = jnp.where(measured, var / (var + r), 0.0)
     z = z + gain * (floor_z + jnp.where(measured, h, 0.0) - z)
-    return FloorState(z=z, var=(1.0 - gain) * var, floor_z=floor_z, has_floor=state.has_floor | measured)
+    return FloorState(
+        z=z,
+        var=(1.0 - gain) * var,
+        floor_z=floor_z,
+        has_floor=state.has_floor | measured,
+    )

@@ -35,7 +35,9 @@ class RobustTwist(eqx.Module):
     slip: Bool[Array, "F"]  # stance feet whose robust weight fell below slip_weight
 
 
-def robust_weight(residual_norm: Float[Array, "*B"], scale: Float[Array, ""], loss: str) -> Float[Array, "*B"]:
+def robust_weight(
+    residual_norm: Float[Array, "*B"], scale: Float[Array, ""], loss: str
+) -> Float[Array, "*B"]:
     """u(r) of the module docstring for residual norms r >= 0 (m/s) and scale c > 0 (m/s)."""
     x = residual_norm / scale
     if loss == "huber":
@@ -67,15 +69,30 @@ def robust_body_twist(
     if loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
     w0 = jnp.where(jnp.isfinite(weights), jnp.clip(weights, 0.0, 1.0), 0.0)
-    solve = lambda w: body_twist(p_base_foot, v_base_foot, omega_imu, w, imu_weight, min_stance, sigma_prior, prior_dof)  # noqa: E731
+    solve = lambda w: body_twist(
+        p_base_foot,
+        v_base_foot,
+        omega_imu,
+        w,
+        imu_weight,
+        min_stance,
+        sigma_prior,
+        prior_dof,
+    )  # noqa: E731
     twist, u = solve(weights), jnp.ones_like(w0)
     c = jnp.maximum(scale, 1e-9)
     for _ in range(n_iter):
-        r = jnp.sqrt(jnp.sum(twist.residual**2, -1) + 1e-12)  # smooth at 0 for gradients
+        r = jnp.sqrt(
+            jnp.sum(twist.residual**2, -1) + 1e-12
+        )  # smooth at 0 for gradients
         u = jnp.where(w0 > 0, robust_weight(r, c, loss), 1.0)
         twist = solve(jnp.where(jnp.isfinite(weights), w0 * u, weights))
     n_stance = jnp.sum(w0)
     twist = eqx.tree_at(
-        lambda t: (t.n_stance, t.linear_observed), twist, (n_stance, twist.valid & (n_stance >= min_stance))
+        lambda t: (t.n_stance, t.linear_observed),
+        twist,
+        (n_stance, twist.valid & (n_stance >= min_stance)),
     )
-    return RobustTwist(twist=twist, weights=w0 * u, robust_weight=u, slip=(w0 > 0) & (u < slip_weight))
+    return RobustTwist(
+        twist=twist, weights=w0 * u, robust_weight=u, slip=(w0 > 0) & (u < slip_weight)
+    )

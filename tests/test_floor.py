@@ -74,9 +74,15 @@ def test_stance_height_is_minus_mean_world_z_of_contact_points():
     w = np.array([1.0, 0.0, 0.5, 1.0])
     p_nan = p.copy()
     p_nan[1] = np.nan
-    h, n = jax.jit(stance_height)(jnp.asarray(p_nan, jnp.float32), jnp.asarray(R, jnp.float32), jnp.asarray(w, jnp.float32))
+    h, n = jax.jit(stance_height)(
+        jnp.asarray(p_nan, jnp.float32),
+        jnp.asarray(R, jnp.float32),
+        jnp.asarray(w, jnp.float32),
+    )
     ref = -np.sum(w * (p @ R.T)[:, 2]) / w.sum()
     np.testing.assert_allclose(h, ref, rtol=1e-5)
     assert float(n) == 2.5
-    h0, n0 = stance_height(jnp.asarray(p, jnp.float32), jnp.asarray(R, jnp.float32), jnp.zeros(4))
+    h0, n0 = stance_height(
+        jnp.asarray(p, jnp.float32), jnp.asarray(R, jnp.float32), jnp.zeros(4)
+    )
     assert float(h0) == 0.0 and float(n0) == 0.0

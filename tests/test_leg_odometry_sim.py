@@ -15,7 +15,14 @@ def walk(tmp_path_factory):
     from jaxquad.sim.fleet import FleetConfig
 
     out = tmp_path_factory.mktemp("walk")
-    config = FleetConfig(robot="go2", world="warehouse", n_robots=1, style="aggressive", seed=8, depth=False)
+    config = FleetConfig(
+        robot="go2",
+        world="warehouse",
+        n_robots=1,
+        style="aggressive",
+        seed=8,
+        depth=False,
+    )
     return load_log(simulate(config, 6.0, out, progress=False))
 
 
@@ -26,7 +33,9 @@ def _estimate(log, **variant):
     robot = load("go2")
     inputs, config = pipeline.inputs_from_log(robot, log, "truth")
     config = dataclasses.replace(config, **variant)
-    out = pipeline.estimate_fleet(robot, config, pipeline.PipelineParams.default(), inputs)
+    out = pipeline.estimate_fleet(
+        robot, config, pipeline.PipelineParams.default(), inputs
+    )
     return jax.tree.map(lambda a: np.asarray(a)[0], out)
 
 
@@ -41,7 +50,10 @@ def test_rolling_contact_and_floor_reduce_the_error_against_simulated_truth(walk
     ok[:5] = ok[-5:] = False
     speed = lambda v: np.linalg.norm(v[ok][:, :2], axis=1).sum()  # noqa: E731
     # Point feet under-count the speed by about r / (leg + r) (~7% for Go2); contact points do not.
-    ratio_point, ratio_full = speed(point.v_base) / speed(v_true), speed(full.v_base) / speed(v_true)
+    ratio_point, ratio_full = (
+        speed(point.v_base) / speed(v_true),
+        speed(full.v_base) / speed(v_true),
+    )
     assert abs(1 - ratio_full) < 0.5 * abs(1 - ratio_point)
     assert ratio_point < 0.96
     # The floor bounds the height; the integrated one sinks.

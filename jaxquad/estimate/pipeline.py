@@ -292,7 +292,8 @@ def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs
         # 4-5. kinematics and twist.
         legs = dynamics.leg_kinematics(robot, qpos, qvel)
         radius = jnp.asarray(robot.foot_radius if config.rolling else np.zeros(n_feet), qpos.dtype)
-        p_foot, v_foot = rolling_contact(legs.p_base_foot, legs.v_base_foot, legs.omega_base_foot, radius, R_world_base[2])
+        n_floor = R_world_base[2]  # the world's up axis in base axes: the normal of a level floor
+        p_foot, v_foot = rolling_contact(legs.p_base_foot, legs.v_base_foot, legs.omega_base_foot, radius, n_floor)
         rob = robust_body_twist(
             p_foot, v_foot, gyro, weight, params.imu_weight, params.min_stance, params.robust_scale, 0.5,
             params.sigma_prior, params.prior_dof, n_iter=config.robust_iters if config.robust != "none" else 0,
