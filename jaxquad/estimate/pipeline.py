@@ -309,7 +309,8 @@ def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs
         if config.floor:
             h, n_h = flr.stance_height(p_foot, R_world_base, weight)
             dz = moved.p_world_base[2] - c.pose.p_world_base[2]
-            floor_state = flr.floor_step(params.floor, c.floor, dz, dt_int, h, n_h)
+            # Across a gap the pose is held, the floor update too.
+            floor_state = flr.floor_step(params.floor, c.floor, dz, dt_int, h, jnp.where(gap, 0.0, n_h))
             moved = Pose(p_world_base=moved.p_world_base.at[2].set(floor_state.z), q_world_base=moved.q_world_base)
         else:
             floor_state = c.floor
