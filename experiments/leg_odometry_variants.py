@@ -7,7 +7,8 @@ Runs the estimation pipeline over each log for every variant:
   floor     + base height from the floor under the stance feet (every correction: the default)
 and prints one Markdown row per (log, contacts, variant) of means over the robots that did not fall:
 end-point drift in % of the horizontal distance, path-length ratio (estimated over true horizontal
-path), ATE (m, SE(3)-aligned), |height error| at the end (m), and the NEES of the twist's linear
+path), segment drift (RMSE of the relative translation error over 5 m segments, evo's RPE, in % of
+5 m), ATE (m, SE(3)-aligned), |height error| at the end (m), and the NEES of the twist's linear
 velocity against the true base velocity (finite differences of gt_pose, base frame; its expected
 value is 3 for a consistent covariance), with the fraction of samples inside the 95% chi-square(3)
 bound (7.81).
@@ -51,7 +52,9 @@ def score_robot(t, est: dict, gt_pose: np.ndarray, valid: np.ndarray) -> dict:
     p_est, p_true = est["p_world_base"][m], gt_pose[m, :3]
     path = lambda p: np.linalg.norm(np.diff(p[:, :2], axis=0), axis=1).sum()  # noqa: E731
     drift = scores.odometry_drift(p_est, p_true)
-    ate = _trajectory_metrics(t, est, gt_pose, m).get("ate", {}).get("rmse", np.nan)
+    traj = _trajectory_metrics(t, est, gt_pose, m)
+    ate = traj.get("ate", {}).get("rmse", np.nan)
+    seg = traj.get("rpe_5m", {}).get("rmse", np.nan)  # 5 m segments (NaN on walks shorter than 10 m)
     # NEES over observed samples away from the ends (central differences there are one-sided).
     err = est["v_base"] - _true_v_base(gt_pose, t)
     obs = m & ~est["no_stance"]
@@ -62,6 +65,7 @@ def score_robot(t, est: dict, gt_pose: np.ndarray, valid: np.ndarray) -> dict:
         "drift_pct": drift["horizontal_pct"],
         "path_ratio": float(path(p_est) / max(path(p_true), 1e-9)),
         "ate_m": float(ate),
+        "seg5m_pct": float(100.0 * seg / 5.0),
         "height_err_end_m": float(abs(p_est[-1, 2] - p_true[-1, 2])),
         "nees_mean": float(nees.mean()),
         "nees_in_95": float((nees < _CHI2_3_95).mean()),
