@@ -138,6 +138,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     keys = (
         "drift_pct",
+        "seg5m_pct",
         "path_ratio",
         "ate_m",
         "height_err_end_m",
