@@ -136,6 +136,14 @@ def main(argv=None) -> int:
         "--json", default=None, help="also write the rows to this JSON file"
     )
     args = ap.parse_args(argv)
+    import platform
+    import shlex
+
+    import jax
+
+    print(f"command: python {shlex.join(sys.argv)}")
+    print(f"machine: {platform.node()} {platform.processor() or platform.machine()}, jax {jax.__version__} on "
+          f"{jax.devices()[0].platform}\n")  # fmt: skip
     keys = (
         "drift_pct",
         "seg5m_pct",
