@@ -193,6 +193,9 @@ class LegKinematics(eqx.Module):
     v_base_foot: Float[Array, "4 3"]  # m/s, from joint motion only: J_base_foot qdot
     J_base_foot: Float[Array, "4 3 nu"]  # d p_base_foot / d q_joints, m/rad
     J_world_foot: Float[Array, "4 3 nv"]  # v_world_foot = J_world_foot qvel (as mj_jacSite)
+    # rad/s: angular velocity of each foot's body relative to the base from joint motion, base axes
+    # (the rolling of a round foot: `kernels.rolling_contact`)
+    omega_base_foot: Float[Array, "4 3"]
 
 
 def leg_kinematics(
@@ -209,23 +212,28 @@ def leg_kinematics(
     b = robot.base_body_id
     R_world_base = d.xmat[b]
     p_world_foot = d.site_xpos[robot.foot_site_ids]
-    J_world_foot = _foot_jac_world(robot, m, d)
+    J_world_foot, J_rot_world_foot = _foot_jac_world(robot, m, d, rotation=True)
     # The base does not move with the joints, so only the rotation into base axes remains.
     J_base_foot = jnp.einsum("ji,fjk->fik", R_world_base, J_world_foot[:, :, robot.dof_adr])
+    J_rot_base_foot = jnp.einsum("ji,fjk->fik", R_world_base, J_rot_world_foot[:, :, robot.dof_adr])
     return LegKinematics(
         p_world_foot=p_world_foot,
         p_base_foot=(p_world_foot - d.xpos[b]) @ R_world_base,
         v_base_foot=J_base_foot @ qvel[robot.dof_adr],
         J_base_foot=J_base_foot,
         J_world_foot=J_world_foot,
+        omega_base_foot=J_rot_base_foot @ qvel[robot.dof_adr],
     )
 
 
-def _foot_jac_world(robot: Robot, m: mjx.Model, d: mjx.Data) -> Array:
-    """(4, 3, nv) world-frame point Jacobians of the foot sites at d's configuration."""
+def _foot_jac_world(robot: Robot, m: mjx.Model, d: mjx.Data, rotation: bool = False):
+    """(4, 3, nv) world-frame point Jacobians of the foot sites at d's configuration; with
+    `rotation` also the (4, 3, nv) rotational Jacobians of the foot bodies."""
     sites = robot.foot_site_ids
     body = jnp.asarray(np.asarray(m.site_bodyid)[sites])
-    jacp = jax.vmap(lambda x, b: mjx.jac(m, d, x, b)[0])(d.site_xpos[sites], body)
+    jacp, jacr = jax.vmap(lambda x, b: mjx.jac(m, d, x, b))(d.site_xpos[sites], body)
+    if rotation:
+        return jnp.swapaxes(jacp, 1, 2), jnp.swapaxes(jacr, 1, 2)
     return jnp.swapaxes(jacp, 1, 2)
 
 

@@ -1,13 +1,10 @@
-"""Pure jitted math for one robot: contact observer, leg twist, scan slicing, AMCL particle filter. `vmap` at the
-call site."""
-"""Pure jitted math for one robot: contact observer, leg twist, scan slicing, pose graphs, occupancy
-grids. `vmap` at the call site."""
+"""Pure jitted math for one robot: contact observer, leg twist, scan slicing, Lie groups (`lie`), pose graphs,
+occupancy grids, scan matching, AMCL, costmaps, planning, MPPI, frontiers. `vmap` at the call site."""
 from jaxquad.kernels.contact import ContactEstimate, ContactObserver, ObserverParams, ObserverState
 from jaxquad.kernels.occupancy import GridSpec, OccupancyGrid, OccupancyParams, init_grid, insert_scan, map_from_scans
 from jaxquad.kernels.posegraph import PoseGraph, SolveInfo, SolverParams, edge_error, optimize
 from jaxquad.kernels.raycast import Boxes, cast_depth, pinhole_rays, ray_distance
 from jaxquad.kernels.scan import CameraIntrinsics, Scan, baseline_scan, level_scan, stabilized_scan
-from jaxquad.kernels.twist import Twist, body_twist
 from jaxquad.kernels.costmap import CostGrid, CostmapParams, costmap_from_occupancy, distance_transform, inflation_cost
 from jaxquad.kernels.frontiers import FrontierChoice, FrontierParams, choose_frontier, frontier_mask, label_clusters
 from jaxquad.kernels.mppi import MppiInputs, MppiOutput, MppiParams, MppiState
@@ -22,3 +19,6 @@ from jaxquad.kernels.particle_filter import (
 from jaxquad.kernels.scan_grid import LikelihoodGrid, MatchParams, MatchSpec, cells_for_range, likelihood_grid, scan_points, world_points
 from jaxquad.kernels.scan_match import MatchResult, match_scan, scan_lookup, search_angles
 from jaxquad.kernels.loop_closure import LoopCandidate, LoopParams, LoopSpec, find_loop_closure
+from jaxquad.kernels.floor import FloorParams, FloorState, floor_init, floor_step, stance_height
+from jaxquad.kernels.robust_twist import RobustTwist, robust_body_twist, robust_weight
+from jaxquad.kernels.twist import Twist, body_twist, rolling_contact

@@ -2,6 +2,8 @@
 the four feet stay fixed in the world; joint angles from damped-Newton IK, joint velocities from
 J_joints qd = -J_base v_base (the foot velocity is zero)."""
 
+import dataclasses
+
 import jax.numpy as jnp
 import mujoco
 import numpy as np
@@ -98,6 +100,8 @@ def fixed_feet_log(robot):
 
 def run(robot, log, contacts="truth"):
     inputs, config = pipeline.inputs_from_log(robot, log, contacts)
+    # The synthetic feet are pinned at their centres (they turn in place), not rolling.
+    config = dataclasses.replace(config, rolling=False)
     out = pipeline.estimate_fleet(robot, config, pipeline.PipelineParams.default(), inputs)
     return out, config
 
@@ -131,6 +135,7 @@ def test_bad_data_is_flagged_and_never_reaches_the_trajectory(robot, fixed_feet_
     fleet["valid"] = np.ones((2, t.size), bool)
 
     inputs, config = pipeline.inputs_from_log(robot, fleet, "truth")
+    config = dataclasses.replace(config, rolling=False)  # pinned feet, as `run`
     out = pipeline.estimate_fleet(robot, config, pipeline.PipelineParams.default(), inputs)
     p = np.asarray(out.p_world_base)
     assert np.isfinite(p).all() and np.isfinite(np.asarray(out.q_world_base)).all()
@@ -174,7 +179,8 @@ def test_cli_end_to_end_on_a_written_log(robot, fixed_feet_log, tmp_path):
     log_path = save_log(tmp_path / "log.npz", fixed_feet_log)
     params = tmp_path / "p.yaml"
     params.write_text("bandwidth: 40\nmode: mixed\nalpha: [0.3, 0.3, 0.1, 0.1]\n")  # same structure: no recompile
-    assert main(["estimate", str(log_path), "--out", str(tmp_path / "out"), "--contacts", "truth", "--params", str(params)]) == 0
+    args = ["--contacts", "truth", "--params", str(params), "--feet", "point"]  # pinned feet, as `run`
+    assert main(["estimate", str(log_path), "--out", str(tmp_path / "out"), *args]) == 0
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     s = summary["robots"][0]["scores"]
     assert s["contacts"]["f1"] == 1.0  # truth contacts against truth

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxquad.kernels import Twist, body_twist
+from jaxquad.kernels import Twist, body_twist, rolling_contact
 
 _twist = jax.jit(body_twist)
 _twist_batch = jax.jit(jax.vmap(body_twist))
@@ -147,3 +147,67 @@ def test_twist_is_a_pytree_with_typed_leaves():
     t = _twist(jnp.zeros((4, 3)), jnp.zeros((4, 3)), jnp.zeros(3), jnp.ones(4))
     assert isinstance(t, Twist)
     assert t.linear_observed.dtype == jnp.bool_ and t.n_stance.shape == ()
+
+
+# --- rolling contact and covariance ---
+
+_rolling = jax.jit(rolling_contact)
+
+
+def test_rolling_contact_recovers_base_velocity_of_a_rolling_sphere():
+    """A sphere rolling without slipping: its centre moves at omega_foot x (r n) in the world. The
+    centre-fixed model misses that; the contact-point model recovers the rigid base twist."""
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        p, _, omega = _random_legs(rng)
+        v_base = rng.standard_normal(3)
+        n = rng.standard_normal(3)
+        n /= np.linalg.norm(n)
+        r = np.array([0.022, 0.02, 0.0, 0.03])
+        omega_rel = rng.standard_normal((4, 3))  # foot body rate relative to the base
+        # World velocity of the centre (base axes) for rolling: (omega + omega_rel) x (r n).
+        v_centre_world = np.cross(omega + omega_rel, r[:, None] * n)
+        v_foot = v_centre_world - v_base - np.cross(omega, p)
+        f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+        pc, vc = _rolling(f32(p), f32(v_foot), f32(omega_rel), f32(r), f32(n))
+        np.testing.assert_allclose(pc, p - r[:, None] * n, atol=1e-6)
+        t = _twist(pc, vc, f32(omega), jnp.ones(4))
+        np.testing.assert_allclose(t.v_base, v_base, atol=1e-5)
+        t_point = _twist(f32(p), f32(v_foot), f32(omega), jnp.ones(4))
+        assert np.linalg.norm(t_point.v_base - v_base) > 1e-3
+
+
+@pytest.mark.parametrize("n_feet", [2, 3, 4])
+def test_covariance_is_sigma2_times_inverse_normal_matrix(n_feet):
+    rng = np.random.default_rng(20 + n_feet)
+    for _ in range(5):
+        p, v, omega_imu = _random_legs(rng, n_feet)
+        w = rng.uniform(0.3, 1.0, n_feet)
+        w_imu, s0, nu0 = rng.uniform(0.1, 2.0), rng.uniform(0.02, 0.2), rng.uniform(0.5, 5.0)
+        A = np.vstack([np.hstack([np.eye(3), -_skew(pi)]) for pi in p] + [np.hstack([np.zeros((3, 3)), np.eye(3)])])
+        W = np.diag(np.concatenate([np.repeat(w, 3), np.full(3, w_imu)]))
+        v_ref, omega_ref = _lstsq_twist(p, v, omega_imu, w, w_imu)
+        res = np.array([v_ref + np.cross(omega_ref, pi) + vi for pi, vi in zip(p, v)])
+        sigma2 = (nu0 * s0**2 + np.sum(w * (res**2).sum(1))) / (nu0 + 3 * w.sum() - 3)
+        cov_ref = sigma2 * np.linalg.inv(A.T @ W @ A)[:3, :3]
+        f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+        t = _twist(f32(p), f32(v), f32(omega_imu), f32(w), f32(w_imu), 1.5, f32(s0), f32(nu0))
+        np.testing.assert_allclose(t.residual, res, atol=2e-4)
+        np.testing.assert_allclose(t.cov_v_base, cov_ref, rtol=2e-3, atol=1e-7)
+
+
+@pytest.mark.parametrize("prior_dof, expected", [(1e7, 3.0), (0.0, 3.0 * 9 / 7)])
+def test_covariance_is_calibrated_on_gaussian_foot_noise(prior_dof, expected):
+    """Monte Carlo with white foot-velocity noise of known sigma: NEES of v_base averages 3 when sigma
+    is the prior's, and 3 nu / (nu - 2) (Student t, nu = 9 residual dof of 4 feet) from residuals alone."""
+    rng = np.random.default_rng(5)
+    sigma, n = 0.05, 3000
+    p = np.stack([_random_legs(rng)[0] for _ in range(n)])
+    v_base, omega = rng.standard_normal((n, 3)), rng.standard_normal((n, 3))
+    v_foot = -v_base[:, None] - np.cross(omega[:, None], p) + sigma * rng.standard_normal((n, 4, 3))
+    f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+    t = _twist_batch(f32(p), f32(v_foot), f32(omega), jnp.ones((n, 4)), jnp.full(n, 1e3), jnp.full(n, 1.5),
+                     jnp.full(n, sigma), jnp.full(n, prior_dof))  # fmt: skip
+    e = np.asarray(t.v_base) - v_base
+    nees = np.einsum("ti,tij,tj->t", e, np.linalg.inv(np.asarray(t.cov_v_base, np.float64)), e)
+    assert abs(nees.mean() - expected) < 0.12 * expected

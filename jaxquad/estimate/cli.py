@@ -20,6 +20,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--band-height", type=int, default=5, help="scan band height, px (default 5 = simulation; 30 on the real robot)")
     parser.add_argument("--range-min", type=float, default=0.2, help="scan minimum range, m (default 0.2)")
     parser.add_argument("--range-max", type=float, default=8.0, help="scan maximum range, m (default 8.0)")
+    parser.add_argument(
+        "--feet", choices=("rolling", "point"), default="rolling",
+        help="leg odometry foot model: contact points of round feet rolling on the floor, or the foot centres "
+        "fixed in the world (default rolling)",
+    )
+    parser.add_argument(
+        "--robust", choices=("huber", "cauchy", "none"), default="huber",
+        help="robust loss over the stance feet against slipping feet (default huber)",
+    )
+    parser.add_argument(
+        "--no-floor", action="store_true",
+        help="integrate the base height instead of fusing it with the floor under the stance feet (default: fuse)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -47,7 +60,8 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         summary = run_estimate(log, args.out, args.contacts, args.params, progress, args.band_height,
-                               args.range_min, args.range_max)  # fmt: skip
+                               args.range_min, args.range_max,
+                               odometry=dict(rolling=args.feet == "rolling", robust=args.robust, floor=not args.no_floor))  # fmt: skip
     finally:
         bar.close()
     robots = summary["robots"]

@@ -8,9 +8,12 @@ Per sample k (dt = t_k - t_{k-1}):
      thresholding their z components, with the model's joint damping and friction in tau_bar:
      `jaxquad.dynamics.momentum_terms`);
   4. foot positions and velocities in the base frame from the MJX model (jaxquad.dynamics:
-     forward kinematics and v_base_foot = J(q) qd);
-  5. the twist least squares (kernels.body_twist) on the stance feet and the gyro;
-  6. the pose: the twist of sample k-1 integrated over dt on SE(3), orientation from step 2.
+     forward kinematics and v_base_foot = J(q) qd), moved to the contact points of the round feet
+     rolling on the floor (kernels.rolling_contact, `PipelineConfig.rolling`);
+  5. the twist least squares on the stance feet and the gyro, reweighted against slipping feet
+     (kernels.robust_body_twist, `PipelineConfig.robust`), with its covariance and slip flags;
+  6. the pose: the twist of sample k-1 integrated over dt on SE(3), orientation from step 2, height
+     fused with the floor under the stance feet (kernels.floor, `PipelineConfig.floor`).
 
 Bad data never reaches the trajectory as NaN; each case is flagged per sample (`Flags`):
 non-finite joint readings hold the joint's last value; non-finite gyro/acc hold the attitude;
@@ -41,7 +44,8 @@ from jaxquad.estimate import attitude as att
 from jaxquad.estimate import differentiate as dif
 from jaxquad.estimate.inputs import CONTACT_SOURCES, R_base_imu, RobotInputs, full_state, gaps, robot_inputs, torque_ok
 from jaxquad.estimate.odometry import Pose, odometry_step
-from jaxquad.kernels import ContactEstimate, ContactObserver, ObserverParams, body_twist
+from jaxquad.kernels import ContactEstimate, ContactObserver, ObserverParams, rolling_contact, robust_body_twist
+from jaxquad.kernels import floor as flr
 from jaxquad.kernels.lie import SO3, rotation_matrix
 
 class PipelineParams(eqx.Module):
@@ -55,6 +59,10 @@ class PipelineParams(eqx.Module):
     max_gap_s: Float[Array, ""]  # longer time steps are not integrated
     fall_tilt_rad: Float[Array, ""]  # base tilt beyond which the robot counts as fallen
     torque_saturation: Float[Array, ""]  # fraction of the torque limit that counts as saturated
+    robust_scale: Float[Array, ""]  # m/s: scale of the twist's robust loss (kernels.robust_twist)
+    sigma_prior: Float[Array, ""]  # m/s: prior foot-velocity noise of the twist covariance
+    prior_dof: Float[Array, ""]  # its weight in degrees of freedom
+    floor: flr.FloorParams  # height filter (kernels.floor)
 
     @classmethod
     def default(cls, n_feet: int = 4, mode: Literal["plain", "mixed"] = "mixed") -> "PipelineParams":
@@ -68,6 +76,10 @@ class PipelineParams(eqx.Module):
             max_gap_s=jnp.asarray(0.05),
             fall_tilt_rad=jnp.asarray(1.2),
             torque_saturation=jnp.asarray(0.99),
+            robust_scale=jnp.asarray(0.1),
+            sigma_prior=jnp.asarray(0.06),
+            prior_dof=jnp.asarray(3.0),
+            floor=flr.FloorParams.default(),
         )
 
 
@@ -88,12 +100,21 @@ class PipelineConfig:
     observer_axes: str = "xyz"
     # observer tau_bar with the model's joint damping and friction (`dynamics.passive_forces`).
     observer_passive: bool = True
+    # leg odometry: contact points of round feet rolling on the floor (radius from the model);
+    # robust loss over stance feet ("none", "huber", "cauchy") with `robust_iters` reweightings;
+    # base height from the floor under the stance feet (flat ground).
+    rolling: bool = True
+    robust: str = "huber"
+    robust_iters: int = 3
+    floor: bool = True
 
     def __post_init__(self):
         if self.contacts not in CONTACT_SOURCES:
             raise ValueError(f"contacts must be one of {CONTACT_SOURCES}, got {self.contacts!r}")
         if self.observer_rows not in ("full", "joints"):
             raise ValueError(f"observer_rows must be 'full' or 'joints', got {self.observer_rows!r}")
+        if self.robust not in ("none", "huber", "cauchy"):
+            raise ValueError(f"robust must be 'none', 'huber' or 'cauchy', got {self.robust!r}")
         if self.observer_axes not in ("z", "xyz"):
             raise ValueError(f"observer_axes must be 'z' or 'xyz', got {self.observer_axes!r}")
 
@@ -121,6 +142,8 @@ class Estimate(eqx.Module):
     force_z: Float[Array, "T F"]  # observer force (N), 0 for truth/sensor contacts
     force_z_filtered: Float[Array, "T F"]
     qd: Float[Array, "T nu"]  # joint velocities used
+    cov_v_base: Float[Array, "T 3 3"]  # (m/s)^2: covariance of the twist's v_base (that sample's solve)
+    slip: Bool[Array, "T F"]  # stance feet the robust twist flagged as slipping
     flags: Flags
 
 
@@ -136,6 +159,7 @@ class _Carry(eqx.Module):
     v_last: Float[Array, "3"]
     omega_last: Float[Array, "3"]
     fallen: Bool[Array, ""]
+    floor: flr.FloorState
 
 
 def observer_params_for_axes(params: ObserverParams, axes: str) -> ObserverParams:
@@ -201,6 +225,7 @@ def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs
         v_last=zeros3,
         omega_last=zeros3,
         fallen=jnp.asarray(False),
+        floor=flr.floor_init(inputs.p0_world_base[2]),
     )
 
     def step(c: _Carry, x):
@@ -265,14 +290,30 @@ def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs
             force_z = force_f = jnp.zeros_like(weight)
 
         # 4-5. kinematics and twist.
-        p_foot, v_foot = dynamics.p_base_foot(robot, qpos), dynamics.v_base_foot(robot, qpos, qvel)
-        tw = body_twist(p_foot, v_foot, gyro, weight, params.imu_weight, params.min_stance)
+        legs = dynamics.leg_kinematics(robot, qpos, qvel)
+        radius = jnp.asarray(robot.foot_radius if config.rolling else np.zeros(n_feet), qpos.dtype)
+        n_floor = R_world_base[2]  # the world's up axis in base axes: the normal of a level floor
+        p_foot, v_foot = rolling_contact(legs.p_base_foot, legs.v_base_foot, legs.omega_base_foot, radius, n_floor)
+        rob = robust_body_twist(
+            p_foot, v_foot, gyro, weight, params.imu_weight, params.min_stance, params.robust_scale, 0.5,
+            params.sigma_prior, params.prior_dof, n_iter=config.robust_iters if config.robust != "none" else 0,
+            loss="huber" if config.robust == "none" else config.robust,
+        )  # fmt: skip
+        tw = rob.twist
         tw_ok = tw.valid & tw.linear_observed
         v_base = jnp.where(tw_ok, tw.v_base, c.v_last)
         omega = jnp.where(tw_ok, tw.omega_base, gyro)
 
         # 6. pose: the previous sample's twist over dt; held once fallen.
         moved = odometry_step(c.pose, c.v_last, c.omega_last, dt_int, quat)
+        if config.floor:
+            h, n_h = flr.stance_height(p_foot, R_world_base, weight)
+            dz = moved.p_world_base[2] - c.pose.p_world_base[2]
+            # Across a gap the pose is held, the floor update too.
+            floor_state = flr.floor_step(params.floor, c.floor, dz, dt_int, h, jnp.where(gap, 0.0, n_h))
+            moved = Pose(p_world_base=moved.p_world_base.at[2].set(floor_state.z), q_world_base=moved.q_world_base)
+        else:
+            floor_state = c.floor
         pose = _hold(~fallen, moved, c.pose)
 
         new = _Carry(
@@ -287,6 +328,7 @@ def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs
             v_last=jnp.where(fallen, 0.0, v_base),
             omega_last=jnp.where(fallen, 0.0, omega),
             fallen=fallen,
+            floor=_hold(~fallen, floor_state, c.floor),
         )
         flags = Flags(
             bad_joints=bad_joints,
@@ -306,6 +348,8 @@ def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs
             force_z=force_z,
             force_z_filtered=force_f,
             qd=qd_use,
+            cov_v_base=tw.cov_v_base,
+            slip=rob.slip,
             flags=flags,
         )
         return new, out

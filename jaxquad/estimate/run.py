@@ -7,7 +7,8 @@ everything against the log's ground truth, returning an `EstimateRun` in memory;
 the output folder. The folder, per robot i (`robot_000`, ... for a fleet, `robot` for a single log):
   <name>.tum        leg-inertial odometry, `t x y z qx qy qz qw` at every sample (log time, s)
   <name>.npz        t, p_world_base, q_world_base (wxyz), v_base, omega_base, contact,
-                    contact_soft, force_z, force_z_filtered (N), qd, and one bool (T,) array per flag
+                    contact_soft, force_z, force_z_filtered (N), qd, cov_v_base (T, 3, 3) (m/s)^2,
+                    slip (T, 4) bool (stance feet the robust twist rejected), and one bool (T,) array per flag
                     (flag_bad_joints, flag_bad_imu, flag_bad_torque, flag_gap, flag_no_stance,
                     flag_fallen)
   <name>_scans.npz  when the log has depth: depth_t, ranges_stabilized and ranges_baseline (F, W) m
@@ -31,7 +32,7 @@ from jaxquad.estimate import scores
 
 _FLAGS = ("bad_joints", "bad_imu", "bad_torque", "gap", "no_stance", "fallen")
 _FIELDS = ("p_world_base", "q_world_base", "v_base", "omega_base", "contact", "contact_soft", "force_z",
-           "force_z_filtered", "qd")  # fmt: skip
+           "force_z_filtered", "qd", "cov_v_base", "slip")  # fmt: skip
 SUMMARY_KIND = "jaxquad estimate"
 
 
@@ -50,9 +51,10 @@ def load_params(path: str | os.PathLike | None, n_feet: int = 4, contacts: str =
     return eqx.tree_at(lambda p: p.observer, params, read_observer_params(path, n_feet, mode))
 
 
-def estimate_log(log: Mapping, contacts: str = "truth", params=None, robot=None):
+def estimate_log(log: Mapping, contacts: str = "truth", params=None, robot=None, odometry: dict | None = None):
     """Run the pipeline over a log (a dict, a loaded `.npz` or a `jaxquad.sim.FleetLog`); returns
-    (robot, config, Estimate as NumPy with a leading robot axis)."""
+    (robot, config, Estimate as NumPy with a leading robot axis). odometry: leg-odometry choices of
+    `PipelineConfig` (rolling, robust, robust_iters, floor) to override."""
     import jax
 
     from jaxquad.estimate import pipeline
@@ -60,6 +62,7 @@ def estimate_log(log: Mapping, contacts: str = "truth", params=None, robot=None)
 
     robot = load(str(np.asarray(log["robot"]))) if robot is None else robot
     inputs, config = pipeline.inputs_from_log(robot, log, contacts)
+    config = dataclasses.replace(config, **(odometry or {}))
     params = load_params(None, len(robot.foot_names), contacts) if params is None else params
     out = pipeline.estimate_fleet(robot, config, params, inputs)
     return robot, config, jax.tree.map(np.asarray, out)
@@ -111,12 +114,12 @@ def _trajectory_metrics(t, est, gt, valid) -> dict:
 
 def estimate_and_score(
     log: Mapping, contacts: str = "truth", params=None, progress=None, band_height: int = 5,
-    range_min: float = 0.2, range_max: float = 8.0, source: str | None = None,
+    range_min: float = 0.2, range_max: float = 8.0, source: str | None = None, odometry: dict | None = None,
 ) -> EstimateRun:
     """Estimate over `log`, slice its depth frames into scans, score against its ground truth.
 
     params: PipelineParams (the paper's defaults if None); band_height (px) and range_min/range_max
-    (m) configure the scans; source: where the log came from, for the summary."""
+    (m) configure the scans; source: where the log came from, for the summary; odometry as `estimate_log`."""
     from jaxquad.io.params import observer_params_dict
 
     robot = None
@@ -125,7 +128,7 @@ def estimate_and_score(
 
         robot = load(str(np.asarray(log["robot"])))
         params = load_params(None, len(robot.foot_names), contacts)
-    robot, config, out = estimate_log(log, contacts, params, robot)
+    robot, config, out = estimate_log(log, contacts, params, robot, odometry)
     t = np.asarray(log["t"], np.float64)
     fleet = "fallen" in log
     n = out.p_world_base.shape[0]
@@ -182,7 +185,7 @@ def write_run(run: EstimateRun, folder: str | os.PathLike) -> None:
 
 def run_estimate(
     log, out_dir, contacts: str = "truth", params_path=None, progress=None,
-    band_height: int = 5, range_min: float = 0.2, range_max: float = 8.0,
+    band_height: int = 5, range_min: float = 0.2, range_max: float = 8.0, odometry: dict | None = None,
 ) -> dict:  # fmt: skip
     """Estimate over `log` (a path to a `.npz`, or a log mapping such as a `jaxquad.sim.FleetLog`),
     write the output folder `out_dir` (checked first; replaced whole when complete, if it holds an
@@ -196,7 +199,7 @@ def run_estimate(
         source, log = str(log), load_log(log)
     robot = load(str(np.asarray(log["robot"])))
     params = load_params(params_path, len(robot.foot_names), contacts)
-    run = estimate_and_score(log, contacts, params, progress, band_height, range_min, range_max, source)
+    run = estimate_and_score(log, contacts, params, progress, band_height, range_min, range_max, source, odometry)
     if params_path is not None:
         run.summary["params_file"] = str(params_path)
     with atomic_dir(out_dir) as tmp:
