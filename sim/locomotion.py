@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from jaxquad.kernels.lie import SO3, R_level_base, roll_pitch, yaw_of
+from jaxquad.kernels.lie import SO3, R_level_base, roll_pitch, rotation_matrix, yaw_of
 
 from .gait import TROT_OFFSETS, leg_phases, raibert_foothold, swing_position
 from .leg_ik import LegGeometry, knee_branch, leg_fk, leg_ik
@@ -332,6 +332,7 @@ def gait_step(
     # Base state (free joint: world position, wxyz quaternion; world linear, body angular velocity).
     roll, pitch = roll_pitch(qpos[3:7])
     yaw = yaw_of(qpos[3:7])
+    R_world_base = rotation_matrix(qpos[3:7])
     cy, sy = jnp.cos(yaw), jnp.sin(yaw)
     v_level = jnp.array([cy * qvel[0] + sy * qvel[1], -sy * qvel[0] + cy * qvel[1]])
 
