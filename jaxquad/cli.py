@@ -13,6 +13,7 @@ _COMMANDS: dict[str, tuple[str, str]] = {
     "eval": ("jaxquad.metrics.cli", "ATE/ARE/APE/RPE of an estimated TUM trajectory against a reference, as evo"),
     "estimate": ("jaxquad.estimate.cli", "contacts and leg-inertial odometry over a robot log (TUM, npz, JSON summary)"),
     "tune": ("jaxquad.estimate.tune.cli", "tune the contact observer's gains and thresholds on a fleet log (grid search or gradient)"),
+    "vo": ("jaxquad.vo.cli", "depth-inertial visual odometry guided and restarted by leg odometry (TUM, JSON summary)"),
     "simulate": ("jaxquad.sim.cli", "run an MJX fleet of robots in generated worlds; write the fleet log, ground-truth TUM and maps"),
 }
 

@@ -111,3 +111,57 @@ def visual_odometry(
     q = np.asarray(jax.vmap(jax.vmap(lambda R: SO3.from_matrix(R).wxyz))(jnp.asarray(T[..., :3, :3])))
     return VoResult(t=np.asarray(log["depth_t"], np.float64), coupling=params.coupling, p_world_base=T[..., :3, 3],
                     q_world_base=q, output=out)  # fmt: skip
+
+
+def _scores(result: VoResult, i: int, gt: np.ndarray, idx: np.ndarray, p_leg, q_leg) -> dict:
+    from jaxquad.estimate.run import _trajectory_metrics
+    from jaxquad.estimate.scores import odometry_drift
+
+    valid = np.ones(idx.size, bool)
+    est = {"p_world_base": result.p_world_base[i], "q_world_base": result.q_world_base[i]}
+    leg = {"p_world_base": np.asarray(p_leg)[i, idx], "q_world_base": np.asarray(q_leg)[i, idx]}
+    return {
+        "vo": {"trajectory": _trajectory_metrics(result.t, est, gt, valid),
+               "drift": odometry_drift(est["p_world_base"], gt[:, :3])},
+        "leg_odometry": {"trajectory": _trajectory_metrics(result.t, leg, gt, valid),
+                         "drift": odometry_drift(leg["p_world_base"], gt[:, :3])},
+    }  # fmt: skip
+
+
+def run_vo(log, out_dir, coupling: str = "guess+restart", contacts: str = "mixed", progress=None) -> dict:
+    """Leg odometry by the estimator, then visual odometry; write `<robot>.tum` per robot and
+    `summary.json` into `out_dir` (checked first, replaced whole when complete); return the summary."""
+    from jaxquad.estimate import estimate_log
+    from jaxquad.estimate.inputs import R_base_imu
+    from jaxquad.io import TumTrajectory, atomic_dir, check_output_dir, load_log, write_tum
+    from jaxquad.io.jsonfile import write_json
+
+    check_output_dir(out_dir, kind=SUMMARY_KIND)
+    source = None
+    if not isinstance(log, Mapping):
+        source, log = str(log), load_log(log)
+    robot, _, est = estimate_log(log, contacts)
+    result = visual_odometry(log, est.p_world_base, est.q_world_base, R_base_imu(robot), coupling, progress=progress)
+    fleet = "fallen" in log
+    idx = frame_samples(np.asarray(log["t"], np.float64), result.t)
+    out = result.output
+    summary = {"kind": SUMMARY_KIND, "log": source, "robot": robot.name, "coupling": coupling, "contacts": contacts,
+               "frames": int(result.t.size), "robots": []}  # fmt: skip
+    names = []
+    for i in range(result.p_world_base.shape[0]):
+        names.append(f"robot_{i:03d}" if fleet else "robot")
+        lost = np.asarray(out.tracking_lost[i])
+        entry = {"name": names[-1], "tracking_losses": int(lost.sum()), "loss_rate": float(lost.mean()),
+                 "keyframes": int(np.asarray(out.new_keyframe[i]).sum()),
+                 "median_inliers": float(np.median(out.n_inliers[i])), "median_min_eig": float(np.median(out.min_eig[i])),
+                 "median_rmse_m": float(np.median(out.rmse[i]))}  # fmt: skip
+        if "gt_pose" in log:
+            gt = np.asarray(log["gt_pose"])[i] if fleet else np.asarray(log["gt_pose"])
+            entry["scores"] = _scores(result, i, gt[idx], idx, est.p_world_base, est.q_world_base)
+        summary["robots"].append(entry)
+    with atomic_dir(out_dir) as tmp:
+        for i, name in enumerate(names):
+            traj = TumTrajectory(result.t, result.p_world_base[i], result.q_world_base[i][:, [1, 2, 3, 0]])
+            write_tum(tmp / f"{name}.tum", traj)
+        write_json(tmp / "summary.json", summary)
+    return summary
