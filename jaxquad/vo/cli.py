@@ -3,7 +3,7 @@
 Runs the estimator for the leg odometry, then the visual odometry over every robot of the log; writes
 per robot a TUM trajectory at the depth frames' stamps and summary.json (tracking losses, keyframes,
 alignment statistics and, when the log has ground truth, ATE/ARE/RPE and drift of the visual and
-of the leg odometry at the same stamps; see jaxquad.vo.run).
+of the leg odometry at the same stamps; see jaxquad.vo.fleet).
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
 
     from jaxquad.io import check_output_dir, load_log
     from jaxquad.io.jsonfile import to_json
-    from jaxquad.vo.run import SUMMARY_KIND, run_vo
+    from jaxquad.vo.fleet import SUMMARY_KIND, run_vo
 
     check_output_dir(args.out, kind=SUMMARY_KIND)
     log = load_log(args.log)
