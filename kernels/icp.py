@@ -21,10 +21,9 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
-
 from jaxquad.kernels._small_linalg import spd_solve
 from jaxquad.kernels.lie import SO3, se3_exp, skew
+from jaxtyping import Array, Bool, Float
 
 # Cosine of the largest angle between a pixel's two one-sided normals (about 18 deg).
 NORMAL_AGREEMENT_COS = 0.95
@@ -35,15 +34,19 @@ class IcpParams(eqx.Module):
 
     max_dist: Float[Array, ""]  # association gate on |T p - q|, m
     huber_k: Float[Array, ""]  # Huber threshold on the point-to-plane residual, m
-    rot_prior_weight: Float[Array, ""]  # weight of the rotation prior, 1/rad^2 (in units of residual m^-2)
-    trans_prior_weight: Float[Array, ""]  # weight of the translation prior, 1/m^2 (relative)
+    rot_prior_weight: Float[
+        Array, ""
+    ]  # weight of the rotation prior, 1/rad^2 (in units of residual m^-2)
+    trans_prior_weight: Float[
+        Array, ""
+    ]  # weight of the translation prior, 1/m^2 (relative)
     damping: Float[Array, ""]  # Levenberg damping added to the normal matrix's diagonal
     # depth jump to a neighbour that invalidates a normal, relative to z per radian of pixel angle
     # (so the same number fits every pyramid level; grazing floors legitimately jump by ~ d / height)
     max_normal_jump: Float[Array, ""]
 
     @classmethod
-    def default(cls) -> "IcpParams":
+    def default(cls) -> IcpParams:
         return cls(
             max_dist=jnp.asarray(0.15), huber_k=jnp.asarray(0.02), rot_prior_weight=jnp.asarray(1e3),
             trans_prior_weight=jnp.asarray(0.0), damping=jnp.asarray(1e-6), max_normal_jump=jnp.asarray(12.0),
@@ -56,14 +59,16 @@ class DepthLevel(eqx.Module):
     points: Float[Array, "h w 3"]  # m
     normals: Float[Array, "h w 3"]  # unit, facing the camera
     valid: Bool[Array, "h w"]  # point valid (finite depth > 0)
-    normal_ok: Bool[Array, "h w"]  # normal valid (its neighbours valid and on the same surface)
+    normal_ok: Bool[
+        Array, "h w"
+    ]  # normal valid (its neighbours valid and on the same surface)
 
 
 class NormalEquations(eqx.Module):
     """The point-to-plane terms of one linearization (prior terms not included)."""
 
     H: Float[Array, "6 6"]  # sum w J^T J
-    b: Float[Array, "6"]  # sum w J^T r
+    b: Float[Array, 6]  # sum w J^T r
     n_inliers: Float[Array, ""]
     sq_residual: Float[Array, ""]  # sum of the inliers' squared residuals, m^2
 
@@ -74,7 +79,9 @@ def level_intrinsics(K: Float[Array, "3 3"], level: int) -> Float[Array, "3 3"]:
     return K * jnp.array([[s, 1.0, s], [1.0, s, s], [1.0, 1.0, 1.0]], K.dtype)
 
 
-def backproject(depth: Float[Array, "h w"], K: Float[Array, "3 3"]) -> tuple[Float[Array, "h w 3"], Bool[Array, "h w"]]:
+def backproject(
+    depth: Float[Array, "h w"], K: Float[Array, "3 3"]
+) -> tuple[Float[Array, "h w 3"], Bool[Array, "h w"]]:
     """Camera-frame points of a z-depth image (0, negative or non-finite = invalid; points there are 0)."""
     h, w = depth.shape
     valid = jnp.isfinite(depth) & (depth > 0.0)
@@ -99,10 +106,26 @@ def image_normals(
     gate = max_jump * jnp.maximum(z, 1e-3)
     ok = valid
     nbr = {}
-    for name, shift, axis in (("right", -1, 1), ("left", 1, 1), ("down", -1, 0), ("up", 1, 0)):
+    for name, shift, axis in (
+        ("right", -1, 1),
+        ("left", 1, 1),
+        ("down", -1, 0),
+        ("up", 1, 0),
+    ):
         nbr[name] = jnp.roll(points, shift, axis=axis)
-        ok &= jnp.roll(valid, shift, axis=axis) & (jnp.abs(nbr[name][..., 2] - z) < gate)
-    ok = ok.at[:, 0].set(False).at[:, -1].set(False).at[0, :].set(False).at[-1, :].set(False)
+        ok &= jnp.roll(valid, shift, axis=axis) & (
+            jnp.abs(nbr[name][..., 2] - z) < gate
+        )
+    ok = (
+        ok.at[:, 0]
+        .set(False)
+        .at[:, -1]
+        .set(False)
+        .at[0, :]
+        .set(False)
+        .at[-1, :]
+        .set(False)
+    )
 
     def unit(n):
         norm = jnp.linalg.norm(n, axis=-1, keepdims=True)
@@ -112,11 +135,18 @@ def image_normals(
     n2, ok2 = unit(jnp.cross(nbr["left"] - points, nbr["up"] - points))
     n, ok3 = unit(n1 + n2)
     ok &= ok1 & ok2 & ok3 & (jnp.sum(n1 * n2, -1) > NORMAL_AGREEMENT_COS)
-    n = jnp.where(jnp.sum(n * points, -1, keepdims=True) > 0.0, -n, n)  # face the camera
+    n = jnp.where(
+        jnp.sum(n * points, -1, keepdims=True) > 0.0, -n, n
+    )  # face the camera
     return jnp.where(ok[..., None], n, 0.0), ok
 
 
-def depth_frame(depth: Float[Array, "H W"], K: Float[Array, "3 3"], levels: int, max_jump: Float[Array, ""]) -> tuple[DepthLevel, ...]:
+def depth_frame(
+    depth: Float[Array, "H W"],
+    K: Float[Array, "3 3"],
+    levels: int,
+    max_jump: Float[Array, ""],
+) -> tuple[DepthLevel, ...]:
     """The pyramid of a depth image, finest level first."""
     out = []
     for level in range(levels):
@@ -134,7 +164,11 @@ def huber_weight(r: Float[Array, "*n"], k: Float[Array, ""]) -> Float[Array, "*n
 
 
 def point_to_plane(
-    T_ref_cur: Float[Array, "4 4"], cur: DepthLevel, ref: DepthLevel, K: Float[Array, "3 3"], params: IcpParams
+    T_ref_cur: Float[Array, "4 4"],
+    cur: DepthLevel,
+    ref: DepthLevel,
+    K: Float[Array, "3 3"],
+    params: IcpParams,
 ) -> NormalEquations:
     """Projective association of the current points into the reference image and the weighted
     point-to-plane normal equations at T_ref_cur."""
@@ -151,7 +185,11 @@ def point_to_plane(
     n = ref.normals.reshape(-1, 3)[idx]
     d = p - q
     r = jnp.sum(n * d, -1)
-    inlier = inside & ref.normal_ok.reshape(-1)[idx] & (jnp.sum(d * d, -1) < params.max_dist**2)
+    inlier = (
+        inside
+        & ref.normal_ok.reshape(-1)[idx]
+        & (jnp.sum(d * d, -1) < params.max_dist**2)
+    )
     wgt = jnp.where(inlier, huber_weight(r, params.huber_k), 0.0)
     J = jnp.concatenate([n, jnp.cross(p, n)], -1)  # (N, 6)
     Jw = J * wgt[:, None]
@@ -163,7 +201,7 @@ def point_to_plane(
 
 def prior_terms(
     T_ref_cur: Float[Array, "4 4"], T_guess: Float[Array, "4 4"], params: IcpParams
-) -> tuple[Float[Array, "6 6"], Float[Array, "6"]]:
+) -> tuple[Float[Array, "6 6"], Float[Array, 6]]:
     """Normal-equation terms of the motion priors, linearized for a left update exp(xi) T:
     e_t = t - t_g with de_t/dxi = [I, -[t]_x]; e_r = log(R R_g^T) with de_r/dxi ~ [0, I]."""
     t = T_ref_cur[:3, 3]
@@ -199,7 +237,9 @@ class Alignment(eqx.Module):
     n_inliers: Float[Array, ""]
     n_valid: Float[Array, ""]  # valid current points at the finest level
     rmse: Float[Array, ""]  # inliers' point-to-plane RMS residual, m
-    min_eig: Float[Array, ""]  # smallest eigenvalue of H / n_inliers (1 for translation along a normal)
+    min_eig: Float[
+        Array, ""
+    ]  # smallest eigenvalue of H / n_inliers (1 for translation along a normal)
 
 
 def align(

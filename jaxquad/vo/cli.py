@@ -14,8 +14,15 @@ import argparse
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from jaxquad.vo.odometry import COUPLINGS
 
-    parser.add_argument("log", help="robot log with depth (.npz, single robot or fleet; see the README's log format)")
-    parser.add_argument("--out", required=True, help="output folder (created; replaced only if it holds an earlier run)")
+    parser.add_argument(
+        "log",
+        help="robot log with depth (.npz, single robot or fleet; see the README's log format)",
+    )
+    parser.add_argument(
+        "--out",
+        required=True,
+        help="output folder (created; replaced only if it holds an earlier run)",
+    )
     parser.add_argument(
         "--leg-odometry", choices=COUPLINGS, default="guess+restart",
         help="coupling: off = constant-velocity guess, restart at the last pose (RTAB-Map's default); guess = leg "
@@ -51,7 +58,11 @@ def run(args: argparse.Namespace) -> int:
     robots = summary["robots"]
     brief = {"robots": len(robots), "coupling": args.leg_odometry, "out": str(args.out),
              "tracking_losses": sum(r["tracking_losses"] for r in robots)}  # fmt: skip
-    ates = [r["scores"]["vo"]["trajectory"]["ate"]["rmse"] for r in robots if "ate" in r.get("scores", {}).get("vo", {}).get("trajectory", {})]
+    ates = [
+        r["scores"]["vo"]["trajectory"]["ate"]["rmse"]
+        for r in robots
+        if "ate" in r.get("scores", {}).get("vo", {}).get("trajectory", {})
+    ]
     if ates:
         brief["mean_ate_m"], brief["max_ate_m"] = sum(ates) / len(ates), max(ates)
     print(to_json(brief))
