@@ -72,7 +72,7 @@ def _throughput(log, est, R_base_imu, batches) -> list[str]:
         "|---:|---:|---:|---:|---:|",
     ]
     for b in batches:
-        x = jax.tree.map(lambda a: jnp.repeat(a, b, 0), inp)
+        x = jax.tree.map(lambda a, b=b: jnp.repeat(a, b, 0), inp)
         t0 = time.perf_counter()
         jax.block_until_ready(fn(params, x))
         compile_s = time.perf_counter() - t0
