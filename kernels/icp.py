@@ -34,12 +34,8 @@ class IcpParams(eqx.Module):
 
     max_dist: Float[Array, ""]  # association gate on |T p - q|, m
     huber_k: Float[Array, ""]  # Huber threshold on the point-to-plane residual, m
-    rot_prior_weight: Float[
-        Array, ""
-    ]  # weight of the rotation prior, 1/rad^2 (in units of residual m^-2)
-    trans_prior_weight: Float[
-        Array, ""
-    ]  # weight of the translation prior, 1/m^2 (relative)
+    rot_prior_weight: Float[Array, ""]  # weight of the rotation prior, 1/rad^2 (in units of residual m^-2)
+    trans_prior_weight: Float[Array, ""]  # weight of the translation prior, 1/m^2 (relative)
     damping: Float[Array, ""]  # Levenberg damping added to the normal matrix's diagonal
     # depth jump to a neighbour that invalidates a normal, relative to z per radian of pixel angle
     # (so the same number fits every pyramid level; grazing floors legitimately jump by ~ d / height)
@@ -59,9 +55,7 @@ class DepthLevel(eqx.Module):
     points: Float[Array, "h w 3"]  # m
     normals: Float[Array, "h w 3"]  # unit, facing the camera
     valid: Bool[Array, "h w"]  # point valid (finite depth > 0)
-    normal_ok: Bool[
-        Array, "h w"
-    ]  # normal valid (its neighbours valid and on the same surface)
+    normal_ok: Bool[Array, "h w"]  # normal valid (its neighbours valid and on the same surface)
 
 
 class NormalEquations(eqx.Module):
@@ -79,9 +73,7 @@ def level_intrinsics(K: Float[Array, "3 3"], level: int) -> Float[Array, "3 3"]:
     return K * jnp.array([[s, 1.0, s], [1.0, s, s], [1.0, 1.0, 1.0]], K.dtype)
 
 
-def backproject(
-    depth: Float[Array, "h w"], K: Float[Array, "3 3"]
-) -> tuple[Float[Array, "h w 3"], Bool[Array, "h w"]]:
+def backproject(depth: Float[Array, "h w"], K: Float[Array, "3 3"]) -> tuple[Float[Array, "h w 3"], Bool[Array, "h w"]]:
     """Camera-frame points of a z-depth image (0, negative or non-finite = invalid; points there are 0)."""
     h, w = depth.shape
     valid = jnp.isfinite(depth) & (depth > 0.0)
@@ -113,19 +105,8 @@ def image_normals(
         ("up", 1, 0),
     ):
         nbr[name] = jnp.roll(points, shift, axis=axis)
-        ok &= jnp.roll(valid, shift, axis=axis) & (
-            jnp.abs(nbr[name][..., 2] - z) < gate
-        )
-    ok = (
-        ok.at[:, 0]
-        .set(False)
-        .at[:, -1]
-        .set(False)
-        .at[0, :]
-        .set(False)
-        .at[-1, :]
-        .set(False)
-    )
+        ok &= jnp.roll(valid, shift, axis=axis) & (jnp.abs(nbr[name][..., 2] - z) < gate)
+    ok = ok.at[:, 0].set(False).at[:, -1].set(False).at[0, :].set(False).at[-1, :].set(False)
 
     def unit(n):
         norm = jnp.linalg.norm(n, axis=-1, keepdims=True)
@@ -135,9 +116,7 @@ def image_normals(
     n2, ok2 = unit(jnp.cross(nbr["left"] - points, nbr["up"] - points))
     n, ok3 = unit(n1 + n2)
     ok &= ok1 & ok2 & ok3 & (jnp.sum(n1 * n2, -1) > NORMAL_AGREEMENT_COS)
-    n = jnp.where(
-        jnp.sum(n * points, -1, keepdims=True) > 0.0, -n, n
-    )  # face the camera
+    n = jnp.where(jnp.sum(n * points, -1, keepdims=True) > 0.0, -n, n)  # face the camera
     return jnp.where(ok[..., None], n, 0.0), ok
 
 
@@ -185,11 +164,7 @@ def point_to_plane(
     n = ref.normals.reshape(-1, 3)[idx]
     d = p - q
     r = jnp.sum(n * d, -1)
-    inlier = (
-        inside
-        & ref.normal_ok.reshape(-1)[idx]
-        & (jnp.sum(d * d, -1) < params.max_dist**2)
-    )
+    inlier = inside & ref.normal_ok.reshape(-1)[idx] & (jnp.sum(d * d, -1) < params.max_dist**2)
     wgt = jnp.where(inlier, huber_weight(r, params.huber_k), 0.0)
     J = jnp.concatenate([n, jnp.cross(p, n)], -1)  # (N, 6)
     Jw = J * wgt[:, None]
@@ -237,9 +212,7 @@ class Alignment(eqx.Module):
     n_inliers: Float[Array, ""]
     n_valid: Float[Array, ""]  # valid current points at the finest level
     rmse: Float[Array, ""]  # inliers' point-to-plane RMS residual, m
-    min_eig: Float[
-        Array, ""
-    ]  # smallest eigenvalue of H / n_inliers (1 for translation along a normal)
+    min_eig: Float[Array, ""]  # smallest eigenvalue of H / n_inliers (1 for translation along a normal)
 
 
 def align(

@@ -15,12 +15,8 @@ from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
 H, W, LEVELS, ITERS = 30, 40, 2, (4, 6)
-K = np.array(
-    [[21.0, 0.0, 19.5], [0.0, 21.0, 14.5], [0.0, 0.0, 1.0]]
-)  # ~87 deg horizontal FOV
-R_WORLD_CAM0 = np.array(
-    [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]
-)  # optical axis along world +x
+K = np.array([[21.0, 0.0, 19.5], [0.0, 21.0, 14.5], [0.0, 0.0, 1.0]])  # ~87 deg horizontal FOV
+R_WORLD_CAM0 = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # optical axis along world +x
 
 
 def _boxes(spec) -> Boxes:
@@ -59,15 +55,9 @@ T_WORLD_CAM0 = _pose(Rotation.from_matrix(R_WORLD_CAM0).as_rotvec(), [0.0, 0.0, 
 @functools.cache
 def _align_fn():
     def run(ref_depth, cur_depth, T_init, T_guess, params):
-        ref = icp.depth_frame(
-            ref_depth, jnp.asarray(K, jnp.float32), LEVELS, params.max_normal_jump
-        )
-        cur = icp.depth_frame(
-            cur_depth, jnp.asarray(K, jnp.float32), LEVELS, params.max_normal_jump
-        )
-        return icp.align(
-            ref, cur, jnp.asarray(K, jnp.float32), T_init, T_guess, params, ITERS
-        )
+        ref = icp.depth_frame(ref_depth, jnp.asarray(K, jnp.float32), LEVELS, params.max_normal_jump)
+        cur = icp.depth_frame(cur_depth, jnp.asarray(K, jnp.float32), LEVELS, params.max_normal_jump)
+        return icp.align(ref, cur, jnp.asarray(K, jnp.float32), T_init, T_guess, params, ITERS)
 
     return jax.jit(run)
 
@@ -77,28 +67,19 @@ def _f32(x):
 
 
 def test_recovers_known_motion_in_a_room():
-    T_delta = _pose(
-        [0.01, -0.03, 0.02], [0.04, -0.02, 0.06]
-    )  # cam0 -> cam1, in cam0's frame
+    T_delta = _pose([0.01, -0.03, 0.02], [0.04, -0.02, 0.06])  # cam0 -> cam1, in cam0's frame
     ref = _render(T_WORLD_CAM0, ROOM, 0.0)
     cur = _render(T_WORLD_CAM0 @ T_delta, ROOM, 0.0)
-    params = eqx.tree_at(
-        lambda p: p.rot_prior_weight, icp.IcpParams.default(), _f32(0.0)
-    )
+    params = eqx.tree_at(lambda p: p.rot_prior_weight, icp.IcpParams.default(), _f32(0.0))
     out = _align_fn()(ref, cur, _f32(np.eye(4)), _f32(np.eye(4)), params)
     T = np.asarray(out.T_ref_cur, np.float64)
     assert np.linalg.norm(T[:3, 3] - T_delta[:3, 3]) < 5e-3
-    assert (
-        np.linalg.norm(Rotation.from_matrix(T[:3, :3].T @ T_delta[:3, :3]).as_rotvec())
-        < 2e-3
-    )
+    assert np.linalg.norm(Rotation.from_matrix(T[:3, :3].T @ T_delta[:3, :3]).as_rotvec()) < 2e-3
     assert out.n_inliers > 0.6 * out.n_valid and out.rmse < 2e-3 and out.min_eig > 1e-3
     # Under vmap: the same result for a batch of two.
     batched = jax.vmap(_align_fn(), in_axes=(None, 0, None, None, None))(
         ref, jnp.stack([cur, cur]), _f32(np.eye(4)), _f32(np.eye(4)), params)  # fmt: skip
-    np.testing.assert_allclose(
-        np.asarray(batched.T_ref_cur[1]), np.asarray(out.T_ref_cur), atol=1e-5
-    )
+    np.testing.assert_allclose(np.asarray(batched.T_ref_cur[1]), np.asarray(out.T_ref_cur), atol=1e-5)
 
 
 def test_rotation_prior_pulls_towards_the_gyro():
@@ -109,21 +90,15 @@ def test_rotation_prior_pulls_towards_the_gyro():
         _render(T_WORLD_CAM0 @ T_delta, ROOM, 0.0),
     )
     T_guess = _pose([0.0, 0.05, 0.0], [0.0, 0.0, 0.0])
-    params = eqx.tree_at(
-        lambda p: p.rot_prior_weight, icp.IcpParams.default(), _f32(1e9)
-    )
+    params = eqx.tree_at(lambda p: p.rot_prior_weight, icp.IcpParams.default(), _f32(1e9))
     out = _align_fn()(ref, cur, _f32(np.eye(4)), _f32(T_guess), params)
     R = np.asarray(out.T_ref_cur[:3, :3], np.float64)
-    assert (
-        np.linalg.norm(Rotation.from_matrix(R.T @ T_guess[:3, :3]).as_rotvec()) < 1e-3
-    )
+    assert np.linalg.norm(Rotation.from_matrix(R.T @ T_guess[:3, :3]).as_rotvec()) < 1e-3
 
 
 @pytest.mark.parametrize("scene", ["plane", "corridor"])
 def test_degenerate_scenes_have_a_small_eigenvalue(scene):
-    if (
-        scene == "plane"
-    ):  # looking down at an open floor: only 3 of 6 directions constrained
+    if scene == "plane":  # looking down at an open floor: only 3 of 6 directions constrained
         T, boxes, floor = (
             T_WORLD_CAM0 @ _pose([-0.6, 0, 0], [0, 0, 0]),
             _boxes([[0, 0, -9, 0.1, 0.1, 0.1, 0]]),
@@ -134,14 +109,10 @@ def test_degenerate_scenes_have_a_small_eigenvalue(scene):
     ref = _render(T, boxes, floor)
     good = _align_fn()(_render(T_WORLD_CAM0, ROOM, 0.0), _render(T_WORLD_CAM0, ROOM, 0.0), _f32(np.eye(4)),
                        _f32(np.eye(4)), icp.IcpParams.default())  # fmt: skip
-    out = _align_fn()(
-        ref, ref, _f32(np.eye(4)), _f32(np.eye(4)), icp.IcpParams.default()
-    )
+    out = _align_fn()(ref, ref, _f32(np.eye(4)), _f32(np.eye(4)), icp.IcpParams.default())
     assert out.n_inliers > 100
     assert out.min_eig < 1e-4 * good.min_eig
-    if (
-        scene == "corridor"
-    ):  # translation along the corridor (camera z) is unconstrained
+    if scene == "corridor":  # translation along the corridor (camera z) is unconstrained
         H_ = np.asarray(out.H, np.float64)
         assert H_[2, 2] < 1e-4 * np.trace(H_)
 
@@ -158,9 +129,7 @@ def _normals_ref(P, valid, max_jump, fx):
                 (v - 1, u),
             ]  # right, left, down, up
             z, gate = P[v, u, 2], max_jump / fx * max(P[v, u, 2], 1e-3)
-            if not valid[v, u] or not all(
-                valid[a] and abs(P[a][2] - z) < gate for a in nb
-            ):
+            if not valid[v, u] or not all(valid[a] and abs(P[a][2] - z) < gate for a in nb):
                 continue
             n1 = np.cross(P[nb[0]] - P[v, u], P[nb[2]] - P[v, u])
             n2 = np.cross(P[nb[1]] - P[v, u], P[nb[3]] - P[v, u])
@@ -220,15 +189,8 @@ def _gn_step_ref(T, T_g, cur_depth, ref_depth, Kl, p):
     J_t = np.hstack([np.eye(3), -S])
     J_r = np.hstack([np.zeros((3, 3)), np.eye(3)])
     e_r = Rotation.from_matrix(T[:3, :3] @ T_g[:3, :3].T).as_rotvec()
-    A += (
-        p["trans_prior_weight"] * J_t.T @ J_t
-        + p["rot_prior_weight"] * J_r.T @ J_r
-        + p["damping"] * np.eye(6)
-    )
-    b += (
-        p["trans_prior_weight"] * J_t.T @ (t - T_g[:3, 3])
-        + p["rot_prior_weight"] * J_r.T @ e_r
-    )
+    A += p["trans_prior_weight"] * J_t.T @ J_t + p["rot_prior_weight"] * J_r.T @ J_r + p["damping"] * np.eye(6)
+    b += p["trans_prior_weight"] * J_t.T @ (t - T_g[:3, 3]) + p["rot_prior_weight"] * J_r.T @ e_r
     xi = -np.linalg.solve(A, b)
     X = np.zeros((4, 4))
     X[:3, :3] = np.array([[0, -xi[5], xi[4]], [xi[5], 0, -xi[3]], [-xi[4], xi[3], 0]])
@@ -241,12 +203,7 @@ def test_gauss_newton_step_equals_numpy_loop():
     h, w = 12, 16
     Kl = np.array([[10.0, 0, 7.3], [0, 10.5, 5.6], [0, 0, 1]])
     uu, vv = np.meshgrid(np.arange(w), np.arange(h))
-    ref_depth = (
-        2.0
-        + 0.3 * np.sin(0.4 * uu)
-        + 0.2 * np.cos(0.5 * vv)
-        + 0.0005 * rng.standard_normal((h, w))
-    )
+    ref_depth = 2.0 + 0.3 * np.sin(0.4 * uu) + 0.2 * np.cos(0.5 * vv) + 0.0005 * rng.standard_normal((h, w))
     cur_depth = ref_depth + 0.02 * rng.standard_normal((h, w))
     ref_depth[rng.random((h, w)) < 0.03] = 0.0
     cur_depth[rng.random((h, w)) < 0.1] = 0.0
@@ -257,15 +214,9 @@ def test_gauss_newton_step_equals_numpy_loop():
     expected = _gn_step_ref(T, T_g, cur_depth, ref_depth, Kl, p)
     with jax.enable_x64(True):
         params = icp.IcpParams(**{k: jnp.asarray(v, jnp.float64) for k, v in p.items()})
-        cur = icp.depth_frame(
-            jnp.asarray(cur_depth), jnp.asarray(Kl), 1, params.max_normal_jump
-        )[0]
-        ref = icp.depth_frame(
-            jnp.asarray(ref_depth), jnp.asarray(Kl), 1, params.max_normal_jump
-        )[0]
-        got, ne = jax.jit(icp.gauss_newton_step)(
-            jnp.asarray(T), jnp.asarray(T_g), cur, ref, jnp.asarray(Kl), params
-        )
+        cur = icp.depth_frame(jnp.asarray(cur_depth), jnp.asarray(Kl), 1, params.max_normal_jump)[0]
+        ref = icp.depth_frame(jnp.asarray(ref_depth), jnp.asarray(Kl), 1, params.max_normal_jump)[0]
+        got, ne = jax.jit(icp.gauss_newton_step)(jnp.asarray(T), jnp.asarray(T_g), cur, ref, jnp.asarray(Kl), params)
         assert ne.n_inliers > 50
         np.testing.assert_allclose(np.asarray(got), expected, atol=1e-9)
 
@@ -281,14 +232,10 @@ def test_gradients_wrt_thresholds_and_weights_are_finite():
     def loss(params):
         r = icp.depth_frame(ref, Kj, 1, params.max_normal_jump)[0]
         c = icp.depth_frame(cur, Kj, 1, params.max_normal_jump)[0]
-        T, ne = icp.gauss_newton_step(
-            _f32(np.eye(4)), _f32(np.eye(4)), c, r, Kj, params
-        )
+        T, ne = icp.gauss_newton_step(_f32(np.eye(4)), _f32(np.eye(4)), c, r, Kj, params)
         return jnp.sum((T[:3, 3] - _f32(T_delta[:3, 3])) ** 2) + 1e-3 * ne.sq_residual
 
-    params = eqx.tree_at(
-        lambda p: p.trans_prior_weight, icp.IcpParams.default(), _f32(1.0)
-    )
+    params = eqx.tree_at(lambda p: p.trans_prior_weight, icp.IcpParams.default(), _f32(1.0))
     g = jax.jit(jax.grad(loss))(params)
     leaves = jax.tree.leaves(g)
     assert all(np.all(np.isfinite(np.asarray(x))) for x in leaves)

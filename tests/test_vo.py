@@ -38,9 +38,7 @@ def _sequence(T_world_base: list[np.ndarray], boxes, floor=0.0, blank=()) -> VoI
     R = [np.eye(3)] + [T_BASE_CAM[:3, :3].T @ (a[:3, :3].T @ b[:3, :3]) @ T_BASE_CAM[:3, :3]
                        for a, b in itertools.pairwise(T_world_base)]  # fmt: skip
     f = lambda x: jnp.asarray(np.stack(x), jnp.float32)
-    return VoInputs(
-        depth=f(depth), R_prev_cur_gyro=f(R), T_world_base_leg=f(T_world_base)
-    )
+    return VoInputs(depth=f(depth), R_prev_cur_gyro=f(R), T_world_base_leg=f(T_world_base))
 
 
 def _walk(n: int, rng) -> list[np.ndarray]:
@@ -71,24 +69,15 @@ def test_known_motion_is_recovered_and_leg_errors_are_corrected():
         d = np.linalg.inv(a) @ b
         d[:3, 3] *= 1.2
         legs.append(legs[-1] @ d)
-    biased = eqx.tree_at(
-        lambda x: x.T_world_base_leg, exact, jnp.asarray(np.stack(legs), jnp.float32)
-    )
+    biased = eqx.tree_at(lambda x: x.T_world_base_leg, exact, jnp.asarray(np.stack(legs), jnp.float32))
     out = _run("guess+restart")(_stack(exact, biased))
     assert not np.any(np.asarray(out.tracking_lost))
     for r in range(2):
         for k, T in enumerate(truth):
             got = np.asarray(out.T_world_base[r, k], np.float64)
             assert np.linalg.norm(got[:3, 3] - T[:3, 3]) < 5e-3, (r, k)
-            assert (
-                np.linalg.norm(
-                    Rotation.from_matrix(got[:3, :3].T @ T[:3, :3]).as_rotvec()
-                )
-                < 3e-3
-            )
-    assert (
-        np.linalg.norm(legs[-1][:3, 3] - truth[-1][:3, 3]) > 0.03
-    )  # the leg odometry alone is off
+            assert np.linalg.norm(Rotation.from_matrix(got[:3, :3].T @ T[:3, :3]).as_rotvec()) < 3e-3
+    assert np.linalg.norm(legs[-1][:3, 3] - truth[-1][:3, 3]) > 0.03  # the leg odometry alone is off
     info = np.asarray(out.information[0, -1], np.float64)
     assert np.all(np.linalg.eigvalsh(info) > 0)  # a covariance exists
 
@@ -100,34 +89,23 @@ def test_restart_uses_the_leg_odometry_pose():
     restart = _run("guess+restart")(_stack(seq))
     off = _run("off")(_stack(seq))
     for out in (restart, off):
-        np.testing.assert_array_equal(
-            np.asarray(out.tracking_lost[0]), [False, False, True, True, False]
-        )
+        np.testing.assert_array_equal(np.asarray(out.tracking_lost[0]), [False, False, True, True, False])
     # guess+restart: the pose at the lost frame is the last good pose moved by the leg odometry.
     for k in (2, 3, 4):
-        np.testing.assert_allclose(
-            np.asarray(restart.T_world_base[0, k]), truth[k], atol=5e-3
-        )
+        np.testing.assert_allclose(np.asarray(restart.T_world_base[0, k]), truth[k], atol=5e-3)
     # off (RTAB-Map's default): the last pose is held, so the motion of the lost frame is missed.
     np.testing.assert_allclose(
         np.asarray(off.T_world_base[0, 2]),
         np.asarray(off.T_world_base[0, 1]),
         atol=1e-6,
     )
-    assert (
-        np.linalg.norm(np.asarray(off.T_world_base[0, 4, :3, 3]) - truth[4][:3, 3])
-        > 0.05
-    )
+    assert np.linalg.norm(np.asarray(off.T_world_base[0, 4, :3, 3]) - truth[4][:3, 3]) > 0.05
 
 
 def test_corridor_is_flagged_as_degenerate():
     truth = [_pose([0, 0, 0], [0.04 * k, 0.0, 0.3]) for k in range(3)]
     out = _run("guess+restart")(_stack(_sequence(truth, CORRIDOR, floor=-100.0)))
     assert np.all(np.asarray(out.tracking_lost[0, 1:]))
-    assert np.all(
-        np.asarray(out.min_eig[0, 1:]) < float(_params("guess+restart").min_eig)
-    )
+    assert np.all(np.asarray(out.min_eig[0, 1:]) < float(_params("guess+restart").min_eig))
     # Lost on every frame, the pose follows the leg odometry (here exact).
-    np.testing.assert_allclose(
-        np.asarray(out.T_world_base[0, -1]), truth[-1], atol=1e-4
-    )
+    np.testing.assert_allclose(np.asarray(out.T_world_base[0, -1]), truth[-1], atol=1e-4)

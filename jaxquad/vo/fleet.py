@@ -61,9 +61,7 @@ def _gyro_rotations(t, gyro, idx, R_imu_cam):
     return jax.vmap(one)(gyro)
 
 
-def vo_inputs(
-    log: Mapping, p_leg: np.ndarray, q_leg: np.ndarray, R_base_imu: np.ndarray
-) -> VoInputs:
+def vo_inputs(log: Mapping, p_leg: np.ndarray, q_leg: np.ndarray, R_base_imu: np.ndarray) -> VoInputs:
     """Inputs with a leading robot axis (N, F, ...); p_leg (N, T, 3), q_leg (N, T, 4) w x y z."""
     for key in ("depth", "depth_t", "K", "T_base_camera"):
         if key not in log:
@@ -80,9 +78,7 @@ def vo_inputs(
                         jnp.asarray(R_imu_cam, jnp.float32))  # fmt: skip
     q = jnp.asarray(np.asarray(q_leg, np.float32)[:, idx])
     p = jnp.asarray(np.asarray(p_leg, np.float32)[:, idx])
-    T_leg = jax.vmap(
-        jax.vmap(lambda q, p: SE3.from_rotation_and_translation(SO3(q), p).as_matrix())
-    )(q, p)
+    T_leg = jax.vmap(jax.vmap(lambda q, p: SE3.from_rotation_and_translation(SO3(q), p).as_matrix()))(q, p)
     return VoInputs(depth=jnp.asarray(depth), R_prev_cur_gyro=R, T_world_base_leg=T_leg)
 
 
@@ -106,9 +102,7 @@ def visual_odometry(
     """Depth odometry of every robot of `log`, guided by the leg odometry (p_leg (N, T, 3) m,
     q_leg (N, T, 4) w x y z at the log's samples). Robots run `chunk` at a time (one compile)."""
     if params is None:
-        params = VoParams.default(
-            np.asarray(log["K"]), np.asarray(log["T_base_camera"]), coupling
-        )
+        params = VoParams.default(np.asarray(log["K"]), np.asarray(log["T_base_camera"]), coupling)
     inputs = vo_inputs(log, p_leg, q_leg, R_base_imu)
     n = inputs.depth.shape[0]
     outs = []
@@ -126,18 +120,12 @@ def visual_odometry(
             progress(min(start + size, n), n)
     out = jax.tree.map(lambda *x: np.concatenate(x), *outs)
     T = out.T_world_base
-    q = np.asarray(
-        jax.vmap(jax.vmap(lambda R: SO3.from_matrix(R).wxyz))(
-            jnp.asarray(T[..., :3, :3])
-        )
-    )
+    q = np.asarray(jax.vmap(jax.vmap(lambda R: SO3.from_matrix(R).wxyz))(jnp.asarray(T[..., :3, :3])))
     return VoResult(t=np.asarray(log["depth_t"], np.float64), coupling=params.coupling, p_world_base=T[..., :3, 3],
                     q_world_base=q, output=out)  # fmt: skip
 
 
-def _scores(
-    result: VoResult, i: int, gt: np.ndarray, idx: np.ndarray, p_leg, q_leg
-) -> dict:
+def _scores(result: VoResult, i: int, gt: np.ndarray, idx: np.ndarray, p_leg, q_leg) -> dict:
     from jaxquad.estimate.run import _trajectory_metrics
     from jaxquad.estimate.scores import odometry_drift
 
@@ -158,9 +146,7 @@ def _scores(
     }  # fmt: skip
 
 
-def score_vo(
-    log: Mapping, result: VoResult, p_leg: np.ndarray, q_leg: np.ndarray
-) -> list[dict]:
+def score_vo(log: Mapping, result: VoResult, p_leg: np.ndarray, q_leg: np.ndarray) -> list[dict]:
     """Per robot: tracking losses, keyframes, alignment statistics and, when the log has ground
     truth, ATE/ARE/RPE (evo's definitions, SE(3)-aligned) and end-point drift of the visual and of
     the leg odometry, both at the frame stamps."""

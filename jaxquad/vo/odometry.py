@@ -37,28 +37,18 @@ class VoParams(eqx.Module):
 
     icp: IcpParams
     min_inliers: Float[Array, ""]  # fewer inliers at the finest level: lost
-    min_eig: Float[
-        Array, ""
-    ]  # smaller eigenvalue of the per-inlier normal matrix: lost (degenerate)
+    min_eig: Float[Array, ""]  # smaller eigenvalue of the per-inlier normal matrix: lost (degenerate)
     max_rmse: Float[Array, ""]  # larger point-to-plane RMS residual (m): lost
-    keyframe_overlap: Float[
-        Array, ""
-    ]  # inliers / keyframe normals below this: new keyframe
-    sigma_floor: Float[
-        Array, ""
-    ]  # lower bound of the residual scale in the information, m
+    keyframe_overlap: Float[Array, ""]  # inliers / keyframe normals below this: new keyframe
+    sigma_floor: Float[Array, ""]  # lower bound of the residual scale in the information, m
     K: Float[Array, "3 3"]
     T_base_camera: Float[Array, "4 4"]
     coupling: str = eqx.field(static=True, default="guess+restart")
-    iterations: tuple[int, ...] = eqx.field(
-        static=True, default=(2, 4, 6)
-    )  # Gauss-Newton steps, finest level first
+    iterations: tuple[int, ...] = eqx.field(static=True, default=(2, 4, 6))  # Gauss-Newton steps, finest level first
 
     def __check_init__(self):
         if self.coupling not in COUPLINGS:
-            raise ValueError(
-                f"coupling must be one of {COUPLINGS}, got {self.coupling!r}"
-            )
+            raise ValueError(f"coupling must be one of {COUPLINGS}, got {self.coupling!r}")
 
     @classmethod
     def default(cls, K, T_base_camera, coupling: str = "guess+restart") -> VoParams:
@@ -73,9 +63,7 @@ class VoInputs(eqx.Module):
     """One depth frame and what the other sensors say about the motion since the previous one."""
 
     depth: Float[Array, "H W"]  # z-depth, m, 0 = invalid
-    R_prev_cur_gyro: Float[
-        Array, "3 3"
-    ]  # camera rotation from the previous frame, integrated gyro
+    R_prev_cur_gyro: Float[Array, "3 3"]  # camera rotation from the previous frame, integrated gyro
     T_world_base_leg: Float[Array, "4 4"]  # leg-odometry pose at this frame
 
 
@@ -83,9 +71,7 @@ class VoState(eqx.Module):
     keyframe: tuple[DepthLevel, ...]
     T_world_kf: Float[Array, "4 4"]  # keyframe camera pose
     T_kf_cur: Float[Array, "4 4"]  # last frame's camera in the keyframe
-    T_prev_cur: Float[
-        Array, "4 4"
-    ]  # last frame-to-frame camera motion (the constant-velocity guess)
+    T_prev_cur: Float[Array, "4 4"]  # last frame-to-frame camera motion (the constant-velocity guess)
     T_world_base_leg: Float[Array, "4 4"]  # leg-odometry pose at the last frame
     T_world_cam_good: Float[Array, "4 4"]  # camera pose of the last tracked frame
     T_world_base_leg_good: Float[Array, "4 4"]  # leg-odometry pose at that frame
@@ -93,9 +79,7 @@ class VoState(eqx.Module):
 
 class VoOutput(eqx.Module):
     T_world_base: Float[Array, "4 4"]
-    information: Float[
-        Array, "6 6"
-    ]  # of T_kf_cur under a left perturbation (v, omega), 1/m^2, 1/rad^2
+    information: Float[Array, "6 6"]  # of T_kf_cur under a left perturbation (v, omega), 1/m^2, 1/rad^2
     n_inliers: Float[Array, ""]
     min_eig: Float[Array, ""]
     rmse: Float[Array, ""]  # m
@@ -108,15 +92,11 @@ def _inv(T: Float[Array, "4 4"]) -> Float[Array, "4 4"]:
     return jnp.eye(4, dtype=T.dtype).at[:3, :3].set(R.T).at[:3, 3].set(-R.T @ t)
 
 
-def init(
-    params: VoParams, depth: Float[Array, "H W"], T_world_base: Float[Array, "4 4"]
-) -> VoState:
+def init(params: VoParams, depth: Float[Array, "H W"], T_world_base: Float[Array, "4 4"]) -> VoState:
     """Start at the first frame, at `T_world_base` (the leg odometry's pose there)."""
     T_world_cam = T_world_base @ params.T_base_camera
     eye = jnp.eye(4, dtype=T_world_cam.dtype)
-    kf = depth_frame(
-        depth, params.K, len(params.iterations), params.icp.max_normal_jump
-    )
+    kf = depth_frame(depth, params.K, len(params.iterations), params.icp.max_normal_jump)
     return VoState(keyframe=kf, T_world_kf=T_world_cam, T_kf_cur=eye, T_prev_cur=eye, T_world_base_leg=T_world_base,
                    T_world_cam_good=T_world_cam, T_world_base_leg_good=T_world_base)  # fmt: skip
 
@@ -125,16 +105,10 @@ def _select(c, a, b):
     return jax.tree.map(lambda x, y: jnp.where(c, x, y), a, b)
 
 
-def step(
-    params: VoParams, state: VoState, inputs: VoInputs
-) -> tuple[VoState, VoOutput]:
+def step(params: VoParams, state: VoState, inputs: VoInputs) -> tuple[VoState, VoOutput]:
     T_bc = params.T_base_camera
-    cur = depth_frame(
-        inputs.depth, params.K, len(params.iterations), params.icp.max_normal_jump
-    )
-    leg_prev_cur = (
-        _inv(T_bc) @ _inv(state.T_world_base_leg) @ inputs.T_world_base_leg @ T_bc
-    )
+    cur = depth_frame(inputs.depth, params.K, len(params.iterations), params.icp.max_normal_jump)
+    leg_prev_cur = _inv(T_bc) @ _inv(state.T_world_base_leg) @ inputs.T_world_base_leg @ T_bc
     if params.coupling == "off":
         motion = state.T_prev_cur.at[:3, :3].set(inputs.R_prev_cur_gyro)
         icp_params = eqx.tree_at(
@@ -146,26 +120,15 @@ def step(
         motion, icp_params = leg_prev_cur, params.icp
     T_init = state.T_kf_cur @ motion
     T_guess = T_init.at[:3, :3].set(state.T_kf_cur[:3, :3] @ inputs.R_prev_cur_gyro)
-    aln = align(
-        state.keyframe, cur, params.K, T_init, T_guess, icp_params, params.iterations
-    )
+    aln = align(state.keyframe, cur, params.K, T_init, T_guess, icp_params, params.iterations)
 
     ok = jnp.all(jnp.isfinite(aln.T_ref_cur)) & jnp.isfinite(aln.min_eig)
-    lost = (
-        ~ok
-        | (aln.n_inliers < params.min_inliers)
-        | (aln.min_eig < params.min_eig)
-        | (aln.rmse > params.max_rmse)
-    )
+    lost = ~ok | (aln.n_inliers < params.min_inliers) | (aln.min_eig < params.min_eig) | (aln.rmse > params.max_rmse)
     T_world_prev = state.T_world_kf @ state.T_kf_cur
     T_tracked = state.T_world_kf @ jnp.where(ok, aln.T_ref_cur, T_init)
     if params.coupling == "guess+restart":
         T_restart = (
-            state.T_world_cam_good
-            @ _inv(T_bc)
-            @ _inv(state.T_world_base_leg_good)
-            @ inputs.T_world_base_leg
-            @ T_bc
+            state.T_world_cam_good @ _inv(T_bc) @ _inv(state.T_world_base_leg_good) @ inputs.T_world_base_leg @ T_bc
         )
     else:
         T_restart = T_world_prev
