@@ -56,8 +56,8 @@ def _throughput(log, est, R_base_imu, batches, frames: int) -> list[str]:
 
     from jaxquad.vo import VoParams, run, vo_inputs
 
-    inp = vo_inputs(log, est.p_world_base[:1], est.q_world_base[:1], R_base_imu)
-    inp = jax.tree.map(lambda a: a[:, :frames], inp)  # depth is 77 kB a frame: bound the batch's memory
+    inp = vo_inputs(log, est.p_world_base, est.q_world_base, R_base_imu)
+    inp = jax.tree.map(lambda a: a[:1, :frames], inp)  # depth is 77 kB a frame: bound the batch's memory
     params = VoParams.default(np.asarray(log["K"]), np.asarray(log["T_base_camera"]))
     fn = jax.jit(jax.vmap(run, in_axes=(None, 0)))
     rows = [

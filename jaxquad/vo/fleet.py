@@ -71,6 +71,8 @@ def vo_inputs(log: Mapping, p_leg: np.ndarray, q_leg: np.ndarray, R_base_imu: np
     gyro = np.asarray(log["gyro"], np.float32)
     if depth.ndim == 3:
         depth, gyro = depth[None], gyro[None]
+    if not (np.shape(p_leg)[:1] == np.shape(q_leg)[:1] == depth.shape[:1]):
+        raise ValueError(f"leg odometry for {np.shape(p_leg)[0]} robots, depth for {depth.shape[0]}")
     idx = frame_samples(t, np.asarray(log["depth_t"], np.float64))
     T_bc = np.asarray(log["T_base_camera"], np.float64)
     R_imu_cam = np.asarray(R_base_imu, np.float64).T @ T_bc[:3, :3]
