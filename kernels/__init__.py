@@ -1,5 +1,6 @@
 """Pure jitted math for one robot: contact observer, leg twist, scan slicing, Lie groups (`lie`), pose graphs,
 occupancy grids, scan matching, AMCL, costmaps, planning, MPPI, frontiers. `vmap` at the call site."""
+from jaxquad.kernels.icp import Alignment, DepthLevel, IcpParams, align, depth_frame, gauss_newton_step
 from jaxquad.kernels.contact import ContactEstimate, ContactObserver, ObserverParams, ObserverState
 from jaxquad.kernels.occupancy import GridSpec, OccupancyGrid, OccupancyParams, init_grid, insert_scan, map_from_scans
 from jaxquad.kernels.posegraph import PoseGraph, SolveInfo, SolverParams, edge_error, optimize

@@ -1,0 +1,239 @@
+"""Projective point-to-plane ICP between depth images, coarse to fine, with pose priors.
+
+A depth frame is a pyramid of back-projected points and normals (`depth_frame`); level l keeps every
+2^l-th pixel of the image, so its intrinsics are K scaled by 2^-l (`level_intrinsics`) and the
+depths are exact (no averaging across depth edges). `align` estimates T_ref_cur, the current
+camera in the reference camera's frame, by Gauss-Newton on
+
+    sum_i rho(n_i . (T p_i - q_i)) + |W_r^1/2 log(R R_g^T)|^2 + |W_t^1/2 (t - t_g)|^2
+
+where p_i are the current points, q_i / n_i the reference point / normal at the pixel p_i projects
+to (projective association), rho a Huber loss (iteratively reweighted), and (R_g, t_g) a motion
+guess: the rotation prior carries the gyro's integrated rotation, the translation prior the leg
+odometry's motion where it is used. Pose updates are left-multiplied: T <- exp(xi) T with
+xi = (v, omega), so a residual's Jacobian is n^T [I, -[T p]_x] = [n, (T p) x n].
+
+Static shapes everywhere (masks, never boolean indexing) and a fixed unrolled iteration count per
+level, so one robot's alignment jits once and vmaps over a fleet.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxquad.kernels._small_linalg import spd_solve
+from jaxquad.kernels.lie import SO3, se3_exp, skew
+from jaxtyping import Array, Bool, Float
+
+# Cosine of the largest angle between a pixel's two one-sided normals (about 18 deg).
+NORMAL_AGREEMENT_COS = 0.95
+
+
+class IcpParams(eqx.Module):
+    """Tunable numbers of the alignment (traced leaves)."""
+
+    max_dist: Float[Array, ""]  # association gate on |T p - q|, m
+    huber_k: Float[Array, ""]  # Huber threshold on the point-to-plane residual, m
+    # weight of the rotation prior, 1/rad^2 against point residuals in m^2 (~2000 inliers of weight 1).
+    # Swept 1e3..1e6 on simulated 20 s Go2 walks (2 robots x 2 contact sources): 1e3 had the lowest mean
+    # and max ATE (0.37 / 0.45 m); stiffer priors helped some robots and hurt others.
+    rot_prior_weight: Float[Array, ""]
+    trans_prior_weight: Float[Array, ""]  # weight of the translation prior, 1/m^2 (relative)
+    damping: Float[Array, ""]  # Levenberg damping added to the normal matrix's diagonal
+    # depth jump to a neighbour that invalidates a normal, relative to z per radian of pixel angle
+    # (so the same number fits every pyramid level; grazing floors legitimately jump by ~ d / height)
+    max_normal_jump: Float[Array, ""]
+
+    @classmethod
+    def default(cls) -> IcpParams:
+        return cls(
+            max_dist=jnp.asarray(0.15), huber_k=jnp.asarray(0.02), rot_prior_weight=jnp.asarray(1e3),
+            trans_prior_weight=jnp.asarray(0.0), damping=jnp.asarray(1e-6), max_normal_jump=jnp.asarray(12.0),
+        )  # fmt: skip
+
+
+class DepthLevel(eqx.Module):
+    """One pyramid level of a depth image: points and normals in the camera frame."""
+
+    points: Float[Array, "h w 3"]  # m
+    normals: Float[Array, "h w 3"]  # unit, facing the camera
+    valid: Bool[Array, "h w"]  # point valid (finite depth > 0)
+    normal_ok: Bool[Array, "h w"]  # normal valid (its neighbours valid and on the same surface)
+
+
+class NormalEquations(eqx.Module):
+    """The point-to-plane terms of one linearization (prior terms not included)."""
+
+    H: Float[Array, "6 6"]  # sum w J^T J
+    b: Float[Array, 6]  # sum w J^T r
+    n_inliers: Float[Array, ""]
+    sq_residual: Float[Array, ""]  # sum of the inliers' squared residuals, m^2
+
+
+def level_intrinsics(K: Float[Array, "3 3"], level: int) -> Float[Array, "3 3"]:
+    """Intrinsics of the image subsampled by 2^level (pixel u' = u / 2^level)."""
+    s = 1.0 / (2**level)
+    return K * jnp.array([[s, 1.0, s], [1.0, s, s], [1.0, 1.0, 1.0]], K.dtype)
+
+
+def backproject(depth: Float[Array, "h w"], K: Float[Array, "3 3"]) -> tuple[Float[Array, "h w 3"], Bool[Array, "h w"]]:
+    """Camera-frame points of a z-depth image (0, negative or non-finite = invalid; points there are 0)."""
+    h, w = depth.shape
+    valid = jnp.isfinite(depth) & (depth > 0.0)
+    z = jnp.where(valid, depth, 0.0)
+    u = jnp.arange(w, dtype=depth.dtype)[None, :]
+    v = jnp.arange(h, dtype=depth.dtype)[:, None]
+    x = (u - K[0, 2]) / K[0, 0] * z
+    y = (v - K[1, 2]) / K[1, 1] * z
+    return jnp.stack([x, y, z], -1), valid
+
+
+def image_normals(
+    points: Float[Array, "h w 3"], valid: Bool[Array, "h w"], max_jump: Float[Array, ""]
+) -> tuple[Float[Array, "h w 3"], Bool[Array, "h w"]]:
+    """Normals from the four neighbours, oriented towards the camera.
+
+    Two one-sided normals, cross(right - p, down - p) and cross(left - p, up - p), must agree within
+    `NORMAL_AGREEMENT_COS` (a pixel on a crease such as a wall-floor corner has no normal), and every
+    neighbour must be valid and within `max_jump` * z in depth (not across a depth edge); the
+    border has no normal. `depth_frame` passes IcpParams.max_normal_jump / f_x as `max_jump`."""
+    z = points[..., 2]
+    gate = max_jump * jnp.maximum(z, 1e-3)
+    ok = valid
+    nbr = {}
+    for name, shift, axis in (
+        ("right", -1, 1),
+        ("left", 1, 1),
+        ("down", -1, 0),
+        ("up", 1, 0),
+    ):
+        nbr[name] = jnp.roll(points, shift, axis=axis)
+        ok &= jnp.roll(valid, shift, axis=axis) & (jnp.abs(nbr[name][..., 2] - z) < gate)
+    ok = ok.at[:, 0].set(False).at[:, -1].set(False).at[0, :].set(False).at[-1, :].set(False)
+
+    def unit(n):
+        norm = jnp.linalg.norm(n, axis=-1, keepdims=True)
+        return n / jnp.where(norm > 0.0, norm, 1.0), norm[..., 0] > 0.0
+
+    n1, ok1 = unit(jnp.cross(nbr["right"] - points, nbr["down"] - points))
+    n2, ok2 = unit(jnp.cross(nbr["left"] - points, nbr["up"] - points))
+    n, ok3 = unit(n1 + n2)
+    ok &= ok1 & ok2 & ok3 & (jnp.sum(n1 * n2, -1) > NORMAL_AGREEMENT_COS)
+    n = jnp.where(jnp.sum(n * points, -1, keepdims=True) > 0.0, -n, n)  # face the camera
+    return jnp.where(ok[..., None], n, 0.0), ok
+
+
+def depth_frame(
+    depth: Float[Array, "H W"],
+    K: Float[Array, "3 3"],
+    levels: int,
+    max_jump: Float[Array, ""],
+) -> tuple[DepthLevel, ...]:
+    """The pyramid of a depth image, finest level first."""
+    out = []
+    for level in range(levels):
+        s = 2**level
+        pts, valid = backproject(depth[::s, ::s], level_intrinsics(K, level))
+        n, n_ok = image_normals(pts, valid, max_jump / level_intrinsics(K, level)[0, 0])
+        out.append(DepthLevel(points=pts, normals=n, valid=valid, normal_ok=n_ok))
+    return tuple(out)
+
+
+def huber_weight(r: Float[Array, "*n"], k: Float[Array, ""]) -> Float[Array, "*n"]:
+    """IRLS weight of the Huber loss: 1 inside k, k/|r| outside."""
+    a = jnp.abs(r)
+    return jnp.where(a <= k, 1.0, k / jnp.maximum(a, 1e-12))
+
+
+def point_to_plane(
+    T_ref_cur: Float[Array, "4 4"],
+    cur: DepthLevel,
+    ref: DepthLevel,
+    K: Float[Array, "3 3"],
+    params: IcpParams,
+) -> NormalEquations:
+    """Projective association of the current points into the reference image and the weighted
+    point-to-plane normal equations at T_ref_cur."""
+    h, w = ref.valid.shape
+    p = cur.points.reshape(-1, 3) @ T_ref_cur[:3, :3].T + T_ref_cur[:3, 3]
+    z = p[:, 2]
+    in_front = cur.valid.reshape(-1) & (z > 1e-3)
+    z_safe = jnp.where(in_front, z, 1.0)
+    u = jnp.round(K[0, 0] * p[:, 0] / z_safe + K[0, 2])
+    v = jnp.round(K[1, 1] * p[:, 1] / z_safe + K[1, 2])
+    inside = in_front & (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+    idx = jnp.where(inside, v.astype(jnp.int32) * w + u.astype(jnp.int32), 0)
+    q = ref.points.reshape(-1, 3)[idx]
+    n = ref.normals.reshape(-1, 3)[idx]
+    d = p - q
+    r = jnp.sum(n * d, -1)
+    inlier = inside & ref.normal_ok.reshape(-1)[idx] & (jnp.sum(d * d, -1) < params.max_dist**2)
+    wgt = jnp.where(inlier, huber_weight(r, params.huber_k), 0.0)
+    J = jnp.concatenate([n, jnp.cross(p, n)], -1)  # (N, 6)
+    Jw = J * wgt[:, None]
+    return NormalEquations(
+        H=Jw.T @ J, b=Jw.T @ r, n_inliers=jnp.sum(inlier.astype(r.dtype)),
+        sq_residual=jnp.sum(jnp.where(inlier, r * r, 0.0)),
+    )  # fmt: skip
+
+
+def prior_terms(
+    T_ref_cur: Float[Array, "4 4"], T_guess: Float[Array, "4 4"], params: IcpParams
+) -> tuple[Float[Array, "6 6"], Float[Array, 6]]:
+    """Normal-equation terms of the motion priors, linearized for a left update exp(xi) T:
+    e_t = t - t_g with de_t/dxi = [I, -[t]_x]; e_r = log(R R_g^T) with de_r/dxi ~ [0, I]."""
+    t = T_ref_cur[:3, 3]
+    e_t = t - T_guess[:3, 3]
+    e_r = SO3.from_matrix(T_ref_cur[:3, :3] @ T_guess[:3, :3].T).log()
+    eye, zero = jnp.eye(3, dtype=t.dtype), jnp.zeros((3, 3), t.dtype)
+    J_t = jnp.concatenate([eye, -skew(t)], 1)
+    J_r = jnp.concatenate([zero, eye], 1)
+    H = params.trans_prior_weight * J_t.T @ J_t + params.rot_prior_weight * J_r.T @ J_r
+    b = params.trans_prior_weight * J_t.T @ e_t + params.rot_prior_weight * J_r.T @ e_r
+    return H, b
+
+
+def gauss_newton_step(
+    T_ref_cur: Float[Array, "4 4"], T_guess: Float[Array, "4 4"], cur: DepthLevel, ref: DepthLevel,
+    K: Float[Array, "3 3"], params: IcpParams,
+) -> tuple[Float[Array, "4 4"], NormalEquations]:  # fmt: skip
+    """One Gauss-Newton update: xi = -(H + H_prior + damping I)^-1 (b + b_prior), T <- exp(xi) T.
+    Returns the new pose and the point-to-plane equations at the old one."""
+    ne = point_to_plane(T_ref_cur, cur, ref, K, params)
+    H_p, b_p = prior_terms(T_ref_cur, T_guess, params)
+    A = ne.H + H_p + params.damping * jnp.eye(6, dtype=ne.H.dtype)
+    xi = -spd_solve(A, ne.b + b_p)
+    return se3_exp(xi[:3], xi[3:]).as_matrix() @ T_ref_cur, ne
+
+
+class Alignment(eqx.Module):
+    """Result of `align`: the pose and the statistics of the finest level's last linearization."""
+
+    T_ref_cur: Float[Array, "4 4"]
+    H: Float[Array, "6 6"]  # point-to-plane normal matrix (priors not included)
+    H_total: Float[Array, "6 6"]  # with the priors
+    n_inliers: Float[Array, ""]
+    n_valid: Float[Array, ""]  # valid current points at the finest level
+    rmse: Float[Array, ""]  # inliers' point-to-plane RMS residual, m
+    min_eig: Float[Array, ""]  # smallest eigenvalue of H / n_inliers (1 for translation along a normal)
+
+
+def align(
+    ref: tuple[DepthLevel, ...], cur: tuple[DepthLevel, ...], K: Float[Array, "3 3"], T_init: Float[Array, "4 4"],
+    T_guess: Float[Array, "4 4"], params: IcpParams, iterations: tuple[int, ...],
+) -> Alignment:  # fmt: skip
+    """Coarse-to-fine alignment; `iterations[l]` Gauss-Newton steps on level l, coarsest first.
+    The statistics are re-linearized at the final pose on the finest level."""
+    T = T_init
+    for level in reversed(range(len(iterations))):
+        K_l = level_intrinsics(K, level)
+        for _ in range(iterations[level]):
+            T, _ = gauss_newton_step(T, T_guess, cur[level], ref[level], K_l, params)
+    ne = point_to_plane(T, cur[0], ref[0], K, params)
+    H_p, _ = prior_terms(T, T_guess, params)
+    n = jnp.maximum(ne.n_inliers, 1.0)
+    return Alignment(
+        T_ref_cur=T, H=ne.H, H_total=ne.H + H_p, n_inliers=ne.n_inliers,
+        n_valid=jnp.sum(cur[0].valid.astype(T.dtype)), rmse=jnp.sqrt(ne.sq_residual / n),
+        min_eig=jnp.linalg.eigvalsh(ne.H / n)[0],
+    )  # fmt: skip

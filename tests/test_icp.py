@@ -1,0 +1,242 @@
+"""Point-to-plane ICP (kernels.icp) against depth rendered by the project's caster and a NumPy loop."""
+
+from __future__ import annotations
+
+import functools
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jaxquad.kernels import icp
+from jaxquad.kernels.raycast import Boxes, cast_depth, pinhole_rays
+from scipy.linalg import expm
+from scipy.spatial.transform import Rotation
+
+H, W, LEVELS, ITERS = 30, 40, 2, (4, 6)
+K = np.array([[21.0, 0.0, 19.5], [0.0, 21.0, 14.5], [0.0, 0.0, 1.0]])  # ~87 deg horizontal FOV
+R_WORLD_CAM0 = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # optical axis along world +x
+
+
+def _boxes(spec) -> Boxes:
+    a = np.asarray(spec, np.float32)
+    return Boxes(
+        center=jnp.asarray(a[:, 0:3]),
+        half=jnp.asarray(a[:, 3:6]),
+        yaw=jnp.asarray(a[:, 6]),
+    )
+
+
+# A room 6 x 5 m with two boxes and a slanted one: constrains all six degrees of freedom.
+ROOM = _boxes([[3.0, 0, 1, 0.1, 2.5, 1, 0], [0.5, 2.5, 1, 3, 0.1, 1, 0], [0.5, -2.5, 1, 3, 0.1, 1, 0],
+               [2.0, 0.8, 0.3, 0.3, 0.3, 0.3, 0.4], [1.8, -1.0, 0.5, 0.2, 0.4, 0.5, -0.3]])  # fmt: skip
+# A long corridor along x (walls at y = +-1, no end within range) without a floor: sliding along x is free.
+CORRIDOR = _boxes([[0.0, 1.1, 1, 50, 0.1, 1, 0], [0.0, -1.1, 1, 50, 0.1, 1, 0]])
+
+
+def _render(T_world_cam: np.ndarray, boxes: Boxes, floor_z: float) -> jnp.ndarray:
+    rays = jnp.asarray(pinhole_rays(K, H, W))
+    d = cast_depth(jnp.asarray(T_world_cam[:3, 3], jnp.float32), jnp.asarray(T_world_cam[:3, :3], jnp.float32),
+                   rays, boxes, floor_z)  # fmt: skip
+    return jnp.where(jnp.isfinite(d) & (d < 8.0), d, 0.0)
+
+
+def _pose(rotvec, t) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
+    T[:3, 3] = t
+    return T
+
+
+T_WORLD_CAM0 = _pose(Rotation.from_matrix(R_WORLD_CAM0).as_rotvec(), [0.0, 0.0, 0.35])
+
+
+@functools.cache
+def _align_fn():
+    def run(ref_depth, cur_depth, T_init, T_guess, params):
+        ref = icp.depth_frame(ref_depth, jnp.asarray(K, jnp.float32), LEVELS, params.max_normal_jump)
+        cur = icp.depth_frame(cur_depth, jnp.asarray(K, jnp.float32), LEVELS, params.max_normal_jump)
+        return icp.align(ref, cur, jnp.asarray(K, jnp.float32), T_init, T_guess, params, ITERS)
+
+    return jax.jit(run)
+
+
+def _f32(x):
+    return jnp.asarray(x, jnp.float32)
+
+
+def test_recovers_known_motion_in_a_room():
+    T_delta = _pose([0.01, -0.03, 0.02], [0.04, -0.02, 0.06])  # cam0 -> cam1, in cam0's frame
+    ref = _render(T_WORLD_CAM0, ROOM, 0.0)
+    cur = _render(T_WORLD_CAM0 @ T_delta, ROOM, 0.0)
+    params = eqx.tree_at(lambda p: p.rot_prior_weight, icp.IcpParams.default(), _f32(0.0))
+    out = _align_fn()(ref, cur, _f32(np.eye(4)), _f32(np.eye(4)), params)
+    T = np.asarray(out.T_ref_cur, np.float64)
+    assert np.linalg.norm(T[:3, 3] - T_delta[:3, 3]) < 5e-3
+    assert np.linalg.norm(Rotation.from_matrix(T[:3, :3].T @ T_delta[:3, :3]).as_rotvec()) < 2e-3
+    assert out.n_inliers > 0.6 * out.n_valid and out.rmse < 2e-3 and out.min_eig > 1e-3
+    # Under vmap: the same result for a batch of two.
+    batched = jax.vmap(_align_fn(), in_axes=(None, 0, None, None, None))(
+        ref, jnp.stack([cur, cur]), _f32(np.eye(4)), _f32(np.eye(4)), params)  # fmt: skip
+    np.testing.assert_allclose(np.asarray(batched.T_ref_cur[1]), np.asarray(out.T_ref_cur), atol=1e-5)
+
+
+def test_rotation_prior_pulls_towards_the_gyro():
+    # With a huge prior weight the rotation is the prior's, whatever the geometry says.
+    T_delta = _pose([0.0, 0.02, 0.0], [0.05, 0.0, 0.0])
+    ref, cur = (
+        _render(T_WORLD_CAM0, ROOM, 0.0),
+        _render(T_WORLD_CAM0 @ T_delta, ROOM, 0.0),
+    )
+    T_guess = _pose([0.0, 0.05, 0.0], [0.0, 0.0, 0.0])
+    params = eqx.tree_at(lambda p: p.rot_prior_weight, icp.IcpParams.default(), _f32(1e9))
+    out = _align_fn()(ref, cur, _f32(np.eye(4)), _f32(T_guess), params)
+    R = np.asarray(out.T_ref_cur[:3, :3], np.float64)
+    assert np.linalg.norm(Rotation.from_matrix(R.T @ T_guess[:3, :3]).as_rotvec()) < 1e-3
+
+
+@pytest.mark.parametrize("scene", ["plane", "corridor"])
+def test_degenerate_scenes_have_a_small_eigenvalue(scene):
+    if scene == "plane":  # looking down at an open floor: only 3 of 6 directions constrained
+        T, boxes, floor = (
+            T_WORLD_CAM0 @ _pose([-0.6, 0, 0], [0, 0, 0]),
+            _boxes([[0, 0, -9, 0.1, 0.1, 0.1, 0]]),
+            0.0,
+        )
+    else:
+        T, boxes, floor = T_WORLD_CAM0, CORRIDOR, -100.0
+    ref = _render(T, boxes, floor)
+    good = _align_fn()(_render(T_WORLD_CAM0, ROOM, 0.0), _render(T_WORLD_CAM0, ROOM, 0.0), _f32(np.eye(4)),
+                       _f32(np.eye(4)), icp.IcpParams.default())  # fmt: skip
+    out = _align_fn()(ref, ref, _f32(np.eye(4)), _f32(np.eye(4)), icp.IcpParams.default())
+    assert out.n_inliers > 100
+    assert out.min_eig < 1e-4 * good.min_eig
+    if scene == "corridor":  # translation along the corridor (camera z) is unconstrained
+        H_ = np.asarray(out.H, np.float64)
+        assert H_[2, 2] < 1e-4 * np.trace(H_)
+
+
+def _normals_ref(P, valid, max_jump, fx):
+    h, w, _ = P.shape
+    N, ok = np.zeros_like(P), np.zeros((h, w), bool)
+    for v in range(1, h - 1):
+        for u in range(1, w - 1):
+            nb = [
+                (v, u + 1),
+                (v, u - 1),
+                (v + 1, u),
+                (v - 1, u),
+            ]  # right, left, down, up
+            z, gate = P[v, u, 2], max_jump / fx * max(P[v, u, 2], 1e-3)
+            if not valid[v, u] or not all(valid[a] and abs(P[a][2] - z) < gate for a in nb):
+                continue
+            n1 = np.cross(P[nb[0]] - P[v, u], P[nb[2]] - P[v, u])
+            n2 = np.cross(P[nb[1]] - P[v, u], P[nb[3]] - P[v, u])
+            n1, n2 = n1 / np.linalg.norm(n1), n2 / np.linalg.norm(n2)
+            if n1 @ n2 <= icp.NORMAL_AGREEMENT_COS:
+                continue
+            n = (n1 + n2) / np.linalg.norm(n1 + n2)
+            N[v, u], ok[v, u] = (-n if n @ P[v, u] > 0 else n), True
+    return N, ok
+
+
+def _gn_step_ref(T, T_g, cur_depth, ref_depth, Kl, p):
+    """One Gauss-Newton step written as loops over pixels, from the module docstring's formulas."""
+
+    def points(depth):
+        h, w = depth.shape
+        P = np.zeros((h, w, 3))
+        for v in range(h):
+            for u in range(w):
+                z = depth[v, u]
+                P[v, u] = [
+                    (u - Kl[0, 2]) / Kl[0, 0] * z,
+                    (v - Kl[1, 2]) / Kl[1, 1] * z,
+                    z,
+                ]
+        return P, depth > 0
+
+    Pc, vc = points(cur_depth)
+    Pr, vr = points(ref_depth)
+    Nr, okr = _normals_ref(Pr, vr, p["max_normal_jump"], Kl[0, 0])
+    h, w = ref_depth.shape
+    A, b = np.zeros((6, 6)), np.zeros(6)
+    for v in range(h):
+        for u in range(w):
+            if not vc[v, u]:
+                continue
+            q = T[:3, :3] @ Pc[v, u] + T[:3, 3]
+            if q[2] <= 1e-3:
+                continue
+            uu, vv = (
+                np.round(Kl[0, 0] * q[0] / q[2] + Kl[0, 2]),
+                np.round(Kl[1, 1] * q[1] / q[2] + Kl[1, 2]),
+            )
+            if not (0 <= uu <= w - 1 and 0 <= vv <= h - 1) or not okr[int(vv), int(uu)]:
+                continue
+            d = q - Pr[int(vv), int(uu)]
+            if d @ d >= p["max_dist"] ** 2:
+                continue
+            n = Nr[int(vv), int(uu)]
+            r = n @ d
+            wt = 1.0 if abs(r) <= p["huber_k"] else p["huber_k"] / abs(r)
+            J = np.concatenate([n, np.cross(q, n)])
+            A += wt * np.outer(J, J)
+            b += wt * J * r
+    t = T[:3, 3]
+    S = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    J_t = np.hstack([np.eye(3), -S])
+    J_r = np.hstack([np.zeros((3, 3)), np.eye(3)])
+    e_r = Rotation.from_matrix(T[:3, :3] @ T_g[:3, :3].T).as_rotvec()
+    A += p["trans_prior_weight"] * J_t.T @ J_t + p["rot_prior_weight"] * J_r.T @ J_r + p["damping"] * np.eye(6)
+    b += p["trans_prior_weight"] * J_t.T @ (t - T_g[:3, 3]) + p["rot_prior_weight"] * J_r.T @ e_r
+    xi = -np.linalg.solve(A, b)
+    X = np.zeros((4, 4))
+    X[:3, :3] = np.array([[0, -xi[5], xi[4]], [xi[5], 0, -xi[3]], [-xi[4], xi[3], 0]])
+    X[:3, 3] = xi[:3]
+    return expm(X) @ T
+
+
+def test_gauss_newton_step_equals_numpy_loop():
+    rng = np.random.default_rng(3)
+    h, w = 12, 16
+    Kl = np.array([[10.0, 0, 7.3], [0, 10.5, 5.6], [0, 0, 1]])
+    uu, vv = np.meshgrid(np.arange(w), np.arange(h))
+    ref_depth = 2.0 + 0.3 * np.sin(0.4 * uu) + 0.2 * np.cos(0.5 * vv) + 0.0005 * rng.standard_normal((h, w))
+    cur_depth = ref_depth + 0.02 * rng.standard_normal((h, w))
+    ref_depth[rng.random((h, w)) < 0.03] = 0.0
+    cur_depth[rng.random((h, w)) < 0.1] = 0.0
+    T = _pose(rng.normal(0, 0.02, 3), rng.normal(0, 0.03, 3))
+    T_g = _pose(rng.normal(0, 0.02, 3), rng.normal(0, 0.03, 3))
+    p = {"max_dist": 0.3, "huber_k": 0.015, "rot_prior_weight": 50.0, "trans_prior_weight": 20.0, "damping": 1e-3,
+             "max_normal_jump": 2.0}  # fmt: skip
+    expected = _gn_step_ref(T, T_g, cur_depth, ref_depth, Kl, p)
+    with jax.enable_x64(True):
+        params = icp.IcpParams(**{k: jnp.asarray(v, jnp.float64) for k, v in p.items()})
+        cur = icp.depth_frame(jnp.asarray(cur_depth), jnp.asarray(Kl), 1, params.max_normal_jump)[0]
+        ref = icp.depth_frame(jnp.asarray(ref_depth), jnp.asarray(Kl), 1, params.max_normal_jump)[0]
+        got, ne = jax.jit(icp.gauss_newton_step)(jnp.asarray(T), jnp.asarray(T_g), cur, ref, jnp.asarray(Kl), params)
+        assert ne.n_inliers > 50
+        np.testing.assert_allclose(np.asarray(got), expected, atol=1e-9)
+
+
+def test_gradients_wrt_thresholds_and_weights_are_finite():
+    T_delta = _pose([0.0, 0.02, 0.0], [0.05, 0.0, 0.02])
+    ref, cur = (
+        _render(T_WORLD_CAM0, ROOM, 0.0),
+        _render(T_WORLD_CAM0 @ T_delta, ROOM, 0.0),
+    )
+    Kj = _f32(K)
+
+    def loss(params):
+        r = icp.depth_frame(ref, Kj, 1, params.max_normal_jump)[0]
+        c = icp.depth_frame(cur, Kj, 1, params.max_normal_jump)[0]
+        T, ne = icp.gauss_newton_step(_f32(np.eye(4)), _f32(np.eye(4)), c, r, Kj, params)
+        return jnp.sum((T[:3, 3] - _f32(T_delta[:3, 3])) ** 2) + 1e-3 * ne.sq_residual
+
+    params = eqx.tree_at(lambda p: p.trans_prior_weight, icp.IcpParams.default(), _f32(1.0))
+    g = jax.jit(jax.grad(loss))(params)
+    leaves = jax.tree.leaves(g)
+    assert all(np.all(np.isfinite(np.asarray(x))) for x in leaves)
+    assert float(jnp.abs(g.huber_k)) > 0 and float(jnp.abs(g.rot_prior_weight)) > 0
