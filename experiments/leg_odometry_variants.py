@@ -51,7 +51,7 @@ def score_robot(t, est: dict, gt_pose: np.ndarray, valid: np.ndarray) -> dict:
     m = valid
     p_est, p_true = est["p_world_base"][m], gt_pose[m, :3]
     path = lambda p: np.linalg.norm(np.diff(p[:, :2], axis=0), axis=1).sum()  # noqa: E731
-    drift = scores.odometry_drift(p_est, p_true)
+    drift = scores.odometry_scores(p_est, est["q_world_base"][m], gt_pose[m])
     traj = _trajectory_metrics(t, est, gt_pose, m)
     ate = traj.get("ate", {}).get("rmse", np.nan)
     seg = traj.get("rpe_5m", {}).get("rmse", np.nan)  # 5 m segments (NaN on walks shorter than 10 m)
@@ -62,7 +62,8 @@ def score_robot(t, est: dict, gt_pose: np.ndarray, valid: np.ndarray) -> dict:
     cov = est["cov_v_base"][obs]
     nees = np.einsum("ti,tij,tj->t", err[obs], np.linalg.inv(cov), err[obs])
     return {
-        "drift_pct": drift["horizontal_pct"],
+        "drift_pct": drift["drift_pct"]["mean"],  # segments of 2, 5 and 10 m
+        "endpoint_drift_pct": drift["endpoint_drift_horizontal_pct"],
         "path_ratio": float(path(p_est) / max(path(p_true), 1e-9)),
         "ate_m": float(ate),
         "seg5m_pct": float(100.0 * seg / 5.0),

@@ -45,7 +45,7 @@ def _row(name, scores, robots, wall) -> str:
         return f"{np.mean(vals):.2f}" if vals else "-"
 
     ate = [s["trajectory"]["ate"]["rmse"] for s in scores if "ate" in s["trajectory"]]
-    drift = np.mean([s["drift"]["horizontal_pct"] for s in scores])
+    drift = np.nanmean([s["drift"]["drift_pct"]["mean"] for s in scores])  # segment drift, 2/5/10 m
     loss = f"{np.mean([r['loss_rate'] for r in robots]) * 100:.2f} %" if robots else "-"
     return (f"| {name} | {np.mean(ate):.3f} | {np.max(ate):.3f} | {mean('rpe_2m', 50.0)} | {mean('rpe_5m', 20.0)} | "
             f"{drift:.2f} | {loss} | {wall:.1f} |")  # fmt: skip

@@ -52,12 +52,15 @@ def run(args: argparse.Namespace) -> dict:
                 jax.block_until_ready(out)
                 times = []
                 for _ in range(max(1, args.sim_repeats)):
+                    del out  # a chunk's outputs must not outlive it: the next chunk's plan has no room for them
                     t0 = time.perf_counter()
                     state, out = run_chunk(fleet, state)
                     jax.block_until_ready(out)
                     times.append(time.perf_counter() - t0)
             except (ValueError, jax.errors.JaxRuntimeError) as e:  # does not fit: say so, keep the other rows
                 rows.append({"robots": n, "depth": label, "error": str(e).splitlines()[0][:300]})
+                fleet = state = out = None
+                jax.clear_caches()
                 continue
             times.sort()
             steady = times[len(times) // 2]

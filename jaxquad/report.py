@@ -20,6 +20,7 @@ from jaxquad.io.atomic import atomic_open
 
 # One colour per trajectory source, fixed so every picture of a report reads the same way.
 COLORS = {"ground truth": "black", "mixed": "tab:orange", "observer": "tab:purple", "truth": "tab:blue",
+          "tuned": "tab:orange", "paper": "tab:purple",
           "stabilized": "tab:green", "baseline": "tab:red"}  # fmt: skip
 
 
@@ -150,6 +151,21 @@ def plot_contacts(
     axes[-1, 0].set_xlabel("time (s)")
     axes[-1, 0].set_xlim(t[0], t[-1])
     fig.suptitle(title or "Foot contacts: ground truth and observer", fontsize=12)
+    return _save(fig, path)
+
+
+def plot_heights(path, t: np.ndarray, z_true: np.ndarray, z_est: dict[str, np.ndarray], title: str = "") -> Path:
+    """Base height (m) over time: ground truth and each estimate (label -> (T,) array)."""
+    fig, axes = _figure(1, 1, figsize=(10, 3.2), squeeze=False)
+    ax = axes[0, 0]
+    ax.plot(t, z_true, color=COLORS["ground truth"], lw=1.6, label="ground truth")
+    for label, z in z_est.items():
+        ax.plot(t, z, color=COLORS.get(label), lw=1.1, label=f"leg odometry ({label} contacts)")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("base height z (m)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, ncol=4, loc="lower left", framealpha=0.9)
+    fig.suptitle(title or "Base height: ground truth and leg-inertial odometry", fontsize=12)
     return _save(fig, path)
 
 

@@ -116,7 +116,7 @@ def test_mean_scores_and_table():
 
 def test_refuses_foreign_folder(tmp_path):
     (tmp_path / "keep.txt").write_text("x")
-    with pytest.raises(ValueError, match="holds no earlier demo"):
+    with pytest.raises(ValueError, match="holds no earlier jaxquad demo"):
         demo.run_demo(tmp_path, robots=1, seconds=1.0)
     with pytest.raises(ValueError, match="--robots"):
         demo.run_demo(tmp_path / "new", robots=0)
@@ -126,20 +126,24 @@ def test_refuses_foreign_folder(tmp_path):
 @pytest.mark.slow
 def test_demo_end_to_end(tmp_path):
     out = tmp_path / "report"
-    s = demo.run_demo(out, robots=1, seconds=1.0, style="calm", resolution=(32, 24), progress=False)
+    s = demo.run_demo(out, robots=1, seconds=1.0, style="aggressive", resolution=(32, 24), progress=False)
     on_disk = json.loads((out / "summary.json").read_text())
     assert on_disk["sources"] == s["sources"] and on_disk["kind"] == "jaxquad demo"
     for name in s["files"]:
         assert (out / name).is_file(), name
-    for png in ("trajectories.png", "contacts.png", "scan_frame.png"):
+    for png in ("trajectories.png", "heights.png", "contacts.png", "scan_frame.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    for name in ("sim/fleet.npz", "sim/gt_0000.tum", "estimate_mixed/robot_000.tum", "estimate_truth/robot_000.npz"):
+    for name in ("sim/fleet.npz", "sim/gt_0000.tum", "estimate_tuned/robot_000.tum", "estimate_paper/robot_000.tum",
+                 "estimate_truth/robot_000.npz"):
         assert name in s["files"]
+    # The shipped tuned numbers are the default, the paper's beside them, and both are recorded.
+    assert list(s["sources"]) == ["tuned", "paper", "truth"]
+    assert s["source_params"]["tuned"]["bandwidth"] != s["source_params"]["paper"]["bandwidth"] == 30.0
     # Ground-truth contacts scored against ground truth: exact.
-    assert s["sources"]["truth"]["contact F1"] == 1.0
-    assert 0.0 <= s["sources"]["mixed"]["contact F1"] <= 1.0
+    assert s["sources"]["truth"]["contact F1"]["value"] == 1.0
+    assert 0.0 <= s["sources"]["tuned"]["contact F1"]["value"] <= 1.0
     for src in s["sources"].values():
-        assert all(np.isfinite(v) for v in src.values())
+        assert all("robots" in v["averages"] or "events" in v["averages"] for v in src.values())
     for band in ("baseline", "stabilized"):
         assert 0 <= s["scans"][band]["map_agreement_pct"] <= 100 and s["scans"][band]["rays"] > 0
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary folder left

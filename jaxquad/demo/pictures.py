@@ -39,8 +39,10 @@ def draw(folder: Path, log, runs: dict, sources: tuple[str, ...], scans: dict, m
         titles,
     )
 
-    # Contacts: the first robot that did not fall, a window in the middle of the run.
+    # Contacts and height: the first robot that did not fall; contacts in a window mid-run.
     i = int(np.flatnonzero(~fallen)[0]) if (~fallen).any() else 0
+    report.plot_heights(folder / "heights.png", t, gt[i, :, 2], {s: est[s].p_world_base[i, :, 2] for s in sources},
+                        title=f"Base height of robot {i}: ground truth and leg-inertial odometry")  # fmt: skip
     mid = 0.5 * (t[0] + t[-1])
     sel = (t >= mid - window_s / 2) & (t <= mid + window_s / 2)
     robot = load(str(np.asarray(log["robot"])))
@@ -48,7 +50,7 @@ def draw(folder: Path, log, runs: dict, sources: tuple[str, ...], scans: dict, m
     report.plot_contacts(
         folder / "contacts.png", t[sel], np.asarray(log["gt_contact"])[i, sel], e.contact[i, sel],
         np.asarray(log["gt_force"])[i, sel, :, 2], e.force_z_filtered[i, sel], list(robot.foot_names),
-        title=f"Foot contacts of robot {i}: ground truth and the {sources[0]} observer",
+        title=f"Foot contacts of robot {i}: ground truth and the mixed-mode observer ({sources[0]} numbers)",
     )  # fmt: skip
 
     # Scan frame: the valid frame of robot i where the two bands disagree most with the map.

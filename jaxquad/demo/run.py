@@ -13,9 +13,14 @@ stopped run never leaves a half-written report):
                                      source and for the scans, list of files
   sim/                               the fleet log, ground-truth TUM per robot, the world map(s)
   estimate_<source>/                 per robot TUM + npz (+ scans), summary.json with per-robot scores
+                                     and the observer parameters used
   trajectories.png                   xy paths per robot against ground truth, over the map
+  heights.png                        one robot's base height over time, truth and estimates
   contacts.png                       one robot, a few seconds, every foot: stance and forces
   scan_frame.png                     one depth frame with both bands; the two scans on the map
+Contact sources: "tuned" (the mixed-mode observer with grid-tuned numbers shipped for the robot
+and gait, when there are some: `demo/tuned/`), "paper" (the same observer with the paper's
+published numbers, as the comparison) and "truth" (ground-truth contacts, the odometry's bound).
 Scans: the 5 px band of the paper's simulation, ranges 0-10 m, roll and pitch from the attitude of
 the first contact source's run; each is placed on the map with the ground-truth camera pose and
 scored by the share of rays ending near an occupied cell.
@@ -33,10 +38,17 @@ from jaxquad.demo import pictures
 from jaxquad.demo.scans import HIT_TOLERANCE, score_scans, stack_scans
 from jaxquad.demo.summary import machine, mean_scores
 
-SOURCES = ("mixed", "truth")  # contact sources the demo compares
+TUNED = Path(__file__).with_name("tuned")  # grid-tuned observer numbers per robot and gait: <robot>_<style>.yaml
 BAND_HEIGHT = 5  # px, the paper's simulation band
 RANGE_MIN, RANGE_MAX = 0.0, 10.0  # m, the paper's simulation scan limits
 SUMMARY_KIND = "jaxquad demo"
+
+
+def contact_sources(robot: str, style: str) -> dict[str, tuple[str, Path | None]]:
+    """Contact sources the demo compares: name -> (contact source, observer params file or None)."""
+    tuned = TUNED / f"{robot}_{style}.yaml"
+    sources = {"tuned": ("mixed", tuned)} if tuned.is_file() else {}
+    return sources | {"paper": ("mixed", None), "truth": ("truth", None)}
 
 
 def run_demo(
@@ -47,7 +59,7 @@ def run_demo(
     """Run every stage and write the report folder `out`; returns the summary dict."""
     from tqdm import tqdm
 
-    from jaxquad.estimate.run import estimate_and_score, write_run
+    from jaxquad.estimate.run import estimate_and_score, load_params, write_run
     from jaxquad.io import atomic_dir, check_output_dir, write_json
     from jaxquad.sim import FleetConfig, rollout
     from jaxquad.sim.cli import write_fleet
@@ -65,17 +77,21 @@ def run_demo(
     log = rollout(config, seconds, progress)
     wall["simulate"] = time.perf_counter() - t0
 
+    sources = contact_sources(robot, style)
     runs = {}
-    for source in SOURCES:
+    for source, (contacts, params_file) in sources.items():
         t0 = time.perf_counter()
+        params = load_params(params_file, len(log["gt_contact"][0, 0]), contacts)
         with tqdm(total=robots, desc=f"estimate ({source} contacts)", unit="robot", disable=not progress) as bar:
-            runs[source] = estimate_and_score(log, source, None, lambda done, total: bar.update(done - bar.n),
+            runs[source] = estimate_and_score(log, contacts, params, lambda done, total: bar.update(done - bar.n),
                                               BAND_HEIGHT, RANGE_MIN, RANGE_MAX, source="simulated fleet")  # fmt: skip
+        if params_file is not None:
+            runs[source].summary["params_file"] = str(params_file)
         wall[f"estimate_{source}"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     maps = log.maps()
-    scans = stack_scans(runs[SOURCES[0]].scans)
+    scans = stack_scans(runs[next(iter(sources))].scans)
     scan_scores = score_scans(log, scans, maps)
     wall["scans"] = time.perf_counter() - t0
 
@@ -86,7 +102,7 @@ def run_demo(
         for source, run in runs.items():
             (tmp / f"estimate_{source}").mkdir()
             write_run(run, tmp / f"estimate_{source}")
-        pictures.draw(tmp, log, runs, SOURCES, scans, maps, contact_window_s, BAND_HEIGHT)
+        pictures.draw(tmp, log, runs, tuple(sources), scans, maps, contact_window_s, BAND_HEIGHT)
         wall["write"] = time.perf_counter() - t0
         wall["total"] = time.perf_counter() - t_all
         summary = {
@@ -98,7 +114,8 @@ def run_demo(
                        "scan_range_m": [RANGE_MIN, RANGE_MAX], "map_hit_tolerance_m": HIT_TOLERANCE},  # fmt: skip
             "fallen": [bool(v) for v in np.asarray(log["fallen"])],
             "wall_s": wall,
-            "sources": {s: mean_scores(runs[s].summary["robots"]) for s in SOURCES},
+            "sources": {s: mean_scores(runs[s].summary["robots"]) for s in sources},
+            "source_params": {s: runs[s].summary.get("observer_params", "ground-truth contacts") for s in sources},
             "scans": scan_scores,
             "files": sorted(str(p.relative_to(tmp)) for p in tmp.rglob("*") if p.is_file()) + ["summary.json"],
         }

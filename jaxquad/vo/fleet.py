@@ -129,7 +129,7 @@ def visual_odometry(
 
 def _scores(result: VoResult, i: int, gt: np.ndarray, idx: np.ndarray, p_leg, q_leg) -> dict:
     from jaxquad.estimate.run import _trajectory_metrics
-    from jaxquad.estimate.scores import odometry_drift
+    from jaxquad.estimate.scores import odometry_scores
 
     valid = np.ones(idx.size, bool)
     est = {
@@ -142,9 +142,9 @@ def _scores(result: VoResult, i: int, gt: np.ndarray, idx: np.ndarray, p_leg, q_
     }
     return {
         "vo": {"trajectory": _trajectory_metrics(result.t, est, gt, valid),
-               "drift": odometry_drift(est["p_world_base"], gt[:, :3])},
+               "drift": odometry_scores(est["p_world_base"], est["q_world_base"], gt, valid)},
         "leg_odometry": {"trajectory": _trajectory_metrics(result.t, leg, gt, valid),
-                         "drift": odometry_drift(leg["p_world_base"], gt[:, :3])},
+                         "drift": odometry_scores(leg["p_world_base"], leg["q_world_base"], gt, valid)},
     }  # fmt: skip
 
 
