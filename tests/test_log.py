@@ -102,3 +102,13 @@ def test_fleet_validation_and_save_refuses_bad_log(tmp_path):
     assert not list(tmp_path.iterdir())
     with pytest.raises(FileNotFoundError):
         load_log(tmp_path / "none.npz")
+
+
+def test_empty_and_text_files_fail_in_one_line(tmp_path):
+    empty, text = tmp_path / "empty.npz", tmp_path / "notes.npz"
+    empty.write_bytes(b"")
+    text.write_text("t q gyro\n1 2 3\n")
+    with pytest.raises(ValueError, match="empty"):
+        load_log(empty)
+    with pytest.raises(ValueError, match="not an .npz archive"):
+        load_log(text)

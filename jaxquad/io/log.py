@@ -165,11 +165,17 @@ def load_log(path: str | os.PathLike) -> dict[str, np.ndarray]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"log file not found: {path}")
+    with open(path, "rb") as f:
+        head = f.read(4)
+    if not head:
+        raise ValueError(f"log {path}: the file is empty")
+    if head != b"PK\x03\x04":  # every .npz is a zip archive
+        raise ValueError(f"log {path}: not an .npz archive (a robot log is written by numpy.savez)")
     try:
         with np.load(path, allow_pickle=False) as f:
             log = {k: f[k] for k in f.files}
-    except (OSError, zipfile.BadZipFile, ValueError) as e:
-        raise ValueError(f"log {path}: not a readable .npz ({e})") from None
+    except (OSError, EOFError, zipfile.BadZipFile, ValueError) as e:
+        raise ValueError(f"log {path}: not a readable .npz ({type(e).__name__}: {e})") from None
     validate_log(log, str(path))
     return log
 

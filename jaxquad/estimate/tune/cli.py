@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from jaxquad.estimate import tune as tn
-    from jaxquad.io import load_log
+    from jaxquad.io import check_output_file, load_log, to_json, write_json
     from jaxquad.robots import load
 
     out = Path(args.out)
@@ -62,6 +62,11 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--out must end in .json, .yaml or .yml, got {out.name}")
     if args.chunk < 1 or args.steps < 1 or args.patience < 1:
         raise ValueError("--chunk, --steps and --patience must be >= 1")
+    if not 0 <= args.holdout < 1:
+        raise ValueError(f"--holdout must lie in [0, 1), got {args.holdout}")
+    # The search is long: a place it cannot write must fail now, not after it.
+    check_output_file(out, "--out")
+    check_output_file(out.with_name(f"{out.stem}.summary.json"), "--out summary")
     walls = {}
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
@@ -97,7 +102,9 @@ def run(args: argparse.Namespace) -> int:
 
         kwargs = dict(steps=args.steps, learning_rate=args.lr, patience=args.patience)
     try:
-        best, summary = tn.tune_fleet(args.method, inputs, truth, t, args.mode, args.holdout, progress=progress, **kwargs)
+        # A single-robot log has no robot to hold out: it is tuned and scored on itself (said in the summary).
+        holdout = args.holdout if inputs.p.shape[0] > 1 else 0.0
+        best, summary = tn.tune_fleet(args.method, inputs, truth, t, args.mode, holdout, progress=progress, **kwargs)
     finally:
         bar.close()
     walls["total_s"] = time.perf_counter() - t0
@@ -105,6 +112,6 @@ def run(args: argparse.Namespace) -> int:
     header = (f"jaxquad tune --method {args.method}: F1 {summary['paper_train']['f1']:.4f} (paper defaults) -> "
               f"{summary['tuned_train']['f1']:.4f} on {summary['robots_train']} training robot(s)")  # fmt: skip
     tn.save_params(out, best, header=header)
-    out.with_name(f"{out.stem}.summary.json").write_text(json.dumps(summary, indent=2))
-    print(json.dumps(summary))
+    write_json(out.with_name(f"{out.stem}.summary.json"), summary)
+    print(to_json(summary))
     return 0
