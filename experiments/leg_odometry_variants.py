@@ -6,7 +6,8 @@ Runs the estimation pipeline over each log for every variant:
   robust    + Huber reweighting of the stance feet
   floor     + base height from the floor under the stance feet (every correction: the default)
 and prints one Markdown row per (log, contacts, variant) of means over the robots that did not fall:
-end-point drift in % of the horizontal distance, path-length ratio (estimated over true horizontal
+segment drift (`drift_pct`: KITTI t_rel over 2, 5 and 10 m segments), end-point drift in % of the
+horizontal distance, path-length ratio (estimated over true horizontal
 path), segment drift (RMSE of the relative translation error over 5 m segments, evo's RPE, in % of
 5 m), ATE (m, SE(3)-aligned), |height error| at the end (m), and the NEES of the twist's linear
 velocity against the true base velocity (finite differences of gt_pose, base frame; its expected
@@ -147,6 +148,7 @@ def main(argv=None) -> int:
           f"{jax.devices()[0].platform}\n")  # fmt: skip
     keys = (
         "drift_pct",
+        "endpoint_drift_pct",
         "seg5m_pct",
         "path_ratio",
         "ate_m",
