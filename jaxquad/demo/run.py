@@ -60,7 +60,7 @@ def run_demo(
     from tqdm import tqdm
 
     from jaxquad.estimate.run import estimate_and_score, load_params, write_run
-    from jaxquad.io import atomic_dir, check_output_dir, write_json
+    from jaxquad.io import atomic_dir, check_output_dir, json_ready, write_json
     from jaxquad.sim import FleetConfig, rollout
     from jaxquad.sim.cli import write_fleet
 
@@ -120,4 +120,4 @@ def run_demo(
             "files": sorted(str(p.relative_to(tmp)) for p in tmp.rglob("*") if p.is_file()) + ["summary.json"],
         }
         write_json(tmp / "summary.json", summary)
-    return summary
+    return json_ready(summary)  # as written: undefined figures (no matched event) are None
