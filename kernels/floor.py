@@ -54,6 +54,9 @@ def floor_init(
     )
 
 
+_MIN_WEIGHT = 1e-3  # stance weight (feet) below which the feet measure no height
+
+
 def stance_height(
     p_contact_base: Float[Array, "F 3"],
     R_world_base: Float[Array, "3 3"],
@@ -64,8 +67,11 @@ def stance_height(
     w = jnp.where(jnp.isfinite(weights), jnp.clip(weights, 0.0, 1.0), 0.0)
     z = (jnp.where(w[:, None] > 0, p_contact_base, 0.0) @ R_world_base.T)[:, 2]
     n = jnp.sum(w)
-    h = -jnp.sum(w * z) / jnp.where(n > 0, n, 1.0)
-    ok = (n > 0) & jnp.isfinite(h)
+    # A measurement needs real stance weight: soft contacts of a swinging leg (n ~ 1e-30) would make
+    # h's derivative w.r.t. the weights ~ z / n, overflowing gradients through the where below.
+    ok_n = n > _MIN_WEIGHT
+    h = -jnp.sum(w * z) / jnp.where(ok_n, n, 1.0)
+    ok = ok_n & jnp.isfinite(h)
     return jnp.where(ok, h, 0.0), jnp.where(ok, n, 0.0)
 
 
