@@ -374,7 +374,7 @@ def test_cli_end_to_end_on_a_written_log(robot, sims, tmp_path, capsys):
     out = tmp_path / "best.json"
     args = ["tune", "--log", str(tmp_path / "fleet.npz"), "--method", "grid", "--grid-size", "1,1,1,2,1", "--out", str(out)]
     assert main(args) == 0
-    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    summary = json.loads(capsys.readouterr().out)  # pretty-printed: the whole of stdout
     assert summary["configurations"] == 2 and summary["robots_heldout"] == 1
     assert json.loads((tmp_path / "best.summary.json").read_text()) == summary
     loaded = load_params(out, 4, "mixed").observer
