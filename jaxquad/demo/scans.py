@@ -4,15 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from jaxquad.estimate.scans import frame_samples
 from jaxquad.metrics import scan_map_hits
 
 HIT_TOLERANCE = 0.2  # m (4 map cells): a scan end point this close to an occupied cell agrees with the map
-
-
-def frame_samples(t: np.ndarray, depth_t: np.ndarray) -> np.ndarray:
-    """Index of the latest log sample at or before each depth frame (the sample whose attitude
-    jaxquad.estimate.scans uses for that frame)."""
-    return np.clip(np.searchsorted(t, depth_t, side="right") - 1, 0, t.size - 1)
 
 
 def camera_pose_2d(gt_pose: np.ndarray, T_base_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

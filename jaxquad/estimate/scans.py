@@ -38,6 +38,12 @@ def _slice(depth, intrinsics, roll, pitch, band_height, range_min, range_max):
     return s.ranges, b.ranges, s.bearings[0]
 
 
+def frame_samples(t: np.ndarray, depth_t: np.ndarray) -> np.ndarray:
+    """Index of the latest log sample at or before each depth frame (the first sample for earlier
+    frames): the sample whose attitude and pose belong to that frame."""
+    return np.clip(np.searchsorted(t, depth_t, side="right") - 1, 0, t.size - 1)
+
+
 def log_scans(
     depth: np.ndarray,
     depth_t: np.ndarray,
@@ -49,7 +55,7 @@ def log_scans(
     range_max: float = 8.0,
 ) -> LogScans:
     """Scans of depth (F, H, W) at depth_t (F,) s, attitude q_world_base (T, 4) at t (T,) s."""
-    k = np.clip(np.searchsorted(t, depth_t, side="right") - 1, 0, t.size - 1)
+    k = frame_samples(t, depth_t)
     roll, pitch = roll_pitch(jnp.asarray(q_world_base[k], jnp.float32))
     intr = CameraIntrinsics(*(jnp.asarray(K[i, j], jnp.float32) for i, j in ((0, 0), (1, 1), (0, 2), (1, 2))))
     stab, base, bearings = _slice(

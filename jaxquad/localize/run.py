@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxquad.kernels import AmclInputs, AmclParams, LikelihoodField, amcl_init, amcl_step, likelihood_field
+from jaxquad.estimate.scans import frame_samples
 from jaxquad.kernels.lie import SE2, yaw_of
 from jaxquad.localize.params import DEFAULTS_FILE, LocalizeParams, load_params
 
@@ -134,7 +135,7 @@ def log_inputs(
     _, _, est = estimate_log(log, contacts, obs, robot)
     fleet = "fallen" in log
     t, depth_t = np.asarray(log["t"], np.float64), np.asarray(log["depth_t"], np.float64)
-    k = np.clip(np.searchsorted(t, depth_t, side="right") - 1, 0, t.size - 1)
+    k = frame_samples(t, depth_t)
     n = est.p_world_base.shape[0]
     depth = np.asarray(log["depth"]) if fleet else np.asarray(log["depth"])[None]
     ranges, bearings = [], None

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxquad.estimate.scans import frame_samples
 from jaxquad.kernels.lie import SE3, SO3
 from jaxquad.vo.odometry import VoInputs, VoOutput, VoParams, run
 
@@ -33,11 +34,6 @@ class VoResult:
     p_world_base: np.ndarray  # (N, F, 3) m
     q_world_base: np.ndarray  # (N, F, 4) w x y z
     output: VoOutput  # per-frame information, inliers, conditioning, residual, flags: (N, F, ...)
-
-
-def frame_samples(t: np.ndarray, depth_t: np.ndarray) -> np.ndarray:
-    """Index of the last IMU sample at or before each frame stamp (the first sample for earlier frames)."""
-    return np.clip(np.searchsorted(t, depth_t, side="right") - 1, 0, t.size - 1)
 
 
 @jax.jit
