@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
-import json
 import os
 
 # flag -> (module, help). Order is the run order.
@@ -136,5 +135,7 @@ def run(args: argparse.Namespace) -> int:
                 if k != "rows":
                     print(f"{k}: {_format_value(v)}")
     if args.json:
-        print(json.dumps({**env, "sections": results}, indent=1))
+        from jaxquad.io.jsonfile import to_json
+
+        print(to_json({**env, "sections": results}, indent=1))
     return 0

@@ -58,7 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
+    from jaxquad.io.jsonfile import to_json
 
     from tqdm import tqdm
 
@@ -80,11 +80,11 @@ def run(args: argparse.Namespace) -> int:
                                args.band_height, progress, args.observer_params)  # fmt: skip
     finally:
         bar.close()
-    print(json.dumps({"params_file": summary["params_file"], "params": summary["params"]}, indent=2))
+    print(to_json({"params_file": summary["params_file"], "params": summary["params"]}))
     brief = {"robots": len(summary["robots"]), "out": str(args.out)}
     errs = [r["scores"] for r in summary["robots"] if "scores" in r]
     if errs:
         brief["median_position_error_m"] = float(sorted(e["position_error_median_m"] for e in errs)[len(errs) // 2])
         brief["max_p99_position_error_m"] = max(e["position_error_p99_m"] for e in errs)
-    print(json.dumps(brief, indent=2))
+    print(to_json(brief))
     return 0

@@ -17,7 +17,6 @@ robots of a fleet. Output folder:
 from __future__ import annotations
 
 import dataclasses
-import json
 
 import jax
 import jax.numpy as jnp
@@ -202,7 +201,7 @@ def run_localize(
     contacts: str = "mixed", band_height: int = 5, progress=None, observer_params=None,
 ) -> dict:  # fmt: skip
     """Localize the robots of the log at `log_path` on the map at `map_path`; write `out_dir`."""
-    from jaxquad.io import TumTrajectory, load_log, load_map, write_tum
+    from jaxquad.io import TumTrajectory, load_log, load_map, write_json, write_tum
     from jaxquad.io.atomic import atomic_dir, check_output_dir
 
     check_output_dir(out_dir)
@@ -229,7 +228,7 @@ def run_localize(
                 "resamples": int(r["resampled"].sum()), "final_pose": pose[-1].tolist(),
                 "final_std": std.tolist(), **({"scores": r["scores"]} if "scores" in r else {}),
             })  # fmt: skip
-        (tmp / "summary.json").write_text(json.dumps(summary, indent=2))
+        write_json(tmp / "summary.json", summary)
     return summary
 
 
