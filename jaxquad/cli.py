@@ -16,6 +16,7 @@ _COMMANDS: dict[str, tuple[str, str]] = {
     "convert": ("jaxquad.ros.convert_cli", "a robot log (.npz) from a ROS 1 or ROS 2 bag and a topics file"),
     "export": ("jaxquad.ros.export_cli", "estimation, odometry, SLAM results (TUM, scans, maps) as a ROS bag for RViz/Foxglove"),
     "localize": ("jaxquad.localize.cli", "AMCL localization of a log's robots on a saved map (TUM, npz, JSON summary with errors)"),
+    "slam": ("jaxquad.slam.cli", "online 2D graph SLAM with leg-odometry constraints over a robot or laser log (TUM, map, g2o)"),
     "posegraph": ("jaxquad.slam.posegraph_cli", "optimize a 2D g2o pose graph (sparse Levenberg-Marquardt)"),
     "vo": ("jaxquad.vo.cli", "depth-inertial visual odometry guided and restarted by leg odometry (TUM, JSON summary)"),
     "simulate": ("jaxquad.sim.cli", "run an MJX fleet of robots in generated worlds; write the fleet log, ground-truth TUM and maps"),

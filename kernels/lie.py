@@ -21,8 +21,8 @@ from jaxtyping import Array, Float
 _SMALL_ANGLE_SQ = 1e-6
 
 __all__ = [
-    "SE2", "SE3", "SO2", "SO3", "R_level_base", "se3_exp", "skew", "rotation_matrix", "quat_from_rpy", "roll_pitch",
-    "wrap_angle", "yaw_of",
+    "SE2", "SE3", "SO2", "SO3", "R_level_base", "se2", "se3_exp", "skew", "rotation_matrix", "quat_from_rpy",
+    "roll_pitch", "wrap_angle", "xy_theta", "yaw_of",
 ]  # fmt: skip
 
 
@@ -84,3 +84,13 @@ def R_level_base(roll: Float[Array, ""], pitch: Float[Array, ""]) -> Float[Array
 def wrap_angle(a: Float[Array, "*batch"]) -> Float[Array, "*batch"]:
     """Angle wrapped to [-pi, pi)."""
     return (a + jnp.pi) % (2.0 * jnp.pi) - jnp.pi
+
+
+def se2(xy_theta: Float[Array, "*B 3"]) -> SE2:
+    """SE(2) of (x, y, theta) rows (m, m, rad)."""
+    return SE2.from_xy_theta(xy_theta[..., 0], xy_theta[..., 1], xy_theta[..., 2])
+
+
+def xy_theta(T: SE2) -> Float[Array, "*B 3"]:
+    """(x, y, theta) rows of SE(2) elements, theta in (-pi, pi]."""
+    return jnp.concatenate([T.translation(), T.rotation().as_radians()[..., None]], axis=-1)

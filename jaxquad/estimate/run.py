@@ -92,11 +92,11 @@ def _scores_one(t, est, log_i: dict, valid, f_max: float) -> dict:
     if "gt_pose" in log_i:
         gt = np.asarray(log_i["gt_pose"])
         res["drift"] = scores.odometry_scores(est["p_world_base"], est["q_world_base"], gt, valid)
-        res["trajectory"] = _trajectory_metrics(t, est, gt, valid)
+        res["trajectory"] = trajectory_metrics(t, est, gt, valid)
     return res
 
 
-def _trajectory_metrics(t, est, gt, valid) -> dict:
+def trajectory_metrics(t, est, gt, valid) -> dict:
     from jaxquad.io import TumTrajectory
     from jaxquad.metrics import evaluate
 

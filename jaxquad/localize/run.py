@@ -23,8 +23,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxquad.kernels import AmclInputs, AmclParams, LikelihoodField, amcl_init, amcl_step, likelihood_field
-from jaxquad.estimate.scans import frame_samples
-from jaxquad.kernels.lie import SE2, yaw_of
+from jaxquad.estimate.laser import laser_inputs
+from jaxquad.kernels.lie import SE2
 from jaxquad.localize.params import DEFAULTS_FILE, LocalizeParams, load_params
 
 # Scans per jitted call: long enough to amortize dispatch, short enough for a live progress bar.
@@ -87,10 +87,6 @@ def localize_scans(
     return jax.tree.map(lambda *xs: np.concatenate(xs, 1), *outs)
 
 
-def _pose2d(p: np.ndarray, q_wxyz: np.ndarray) -> np.ndarray:
-    return np.concatenate([p[..., :2], np.asarray(yaw_of(jnp.asarray(q_wxyz)))[..., None]], -1)
-
-
 def _anchored(odom: np.ndarray, start: np.ndarray) -> np.ndarray:
     """Odometry poses (F, 3) moved rigidly so that the first one sits at `start` (x, y, yaw)."""
     T = SE2.from_xy_theta(*jnp.asarray(start, jnp.float32)) @ SE2.from_xy_theta(*jnp.asarray(odom[0])).inverse()
@@ -118,43 +114,10 @@ def _scores(t: np.ndarray, pose: np.ndarray, gt: np.ndarray, valid: np.ndarray, 
 def log_inputs(
     log: dict, lp: LocalizeParams, contacts: str = "mixed", band_height: int = 5, observer_params=None
 ) -> dict:
-    """What the filter reads from a loaded log, per robot (leading axis N) at the F depth frames:
-    t (F,) s, odom (N, F, 3) leg-inertial odometry x y yaw, ranges (N, F, W) stabilized scan (m),
-    bearings (W,) rad, T_base_laser (3,), valid (N, F) and, with ground truth, gt (N, F, 3).
-    `observer_params`: a contact-observer file for the odometry (as `jaxquad estimate --params`)."""
-    from jaxquad.estimate.run import estimate_log
-    from jaxquad.estimate.run import load_params as load_observer_params
-    from jaxquad.estimate.scans import log_scans
-    from jaxquad.robots import load
-
-    if "depth" not in log:
-        raise ValueError("the log has no depth images: localization needs its scans")
-    robot = load(str(np.asarray(log["robot"])))
-    obs = load_observer_params(observer_params, len(robot.foot_names), contacts)
-    _, _, est = estimate_log(log, contacts, obs, robot)
-    fleet = "fallen" in log
-    t, depth_t = np.asarray(log["t"], np.float64), np.asarray(log["depth_t"], np.float64)
-    k = frame_samples(t, depth_t)
-    n = est.p_world_base.shape[0]
-    depth = np.asarray(log["depth"]) if fleet else np.asarray(log["depth"])[None]
-    ranges, bearings = [], None
-    for i in range(n):
-        sc = log_scans(depth[i], depth_t, np.asarray(log["K"]), t, est.q_world_base[i], band_height,
-                       lp.laser_min_range, lp.laser_max_range)  # fmt: skip
-        ranges.append(np.asarray(sc.ranges_stabilized))
-        bearings = np.asarray(sc.bearings)
-    T_base_camera = np.asarray(log["T_base_camera"])
-    out = {
-        "t": depth_t, "odom": _pose2d(est.p_world_base[:, k], est.q_world_base[:, k]), "ranges": np.stack(ranges),
-        "bearings": bearings,
-        # The scans are levelled along the base's heading: the laser sits at the camera's x y, yaw 0.
-        "T_base_laser": np.array([T_base_camera[0, 3], T_base_camera[1, 3], 0.0]),
-        "valid": np.asarray(log["valid"])[:, k] if "valid" in log else np.ones((n, k.size), bool),
-    }  # fmt: skip
-    if "gt_pose" in log:
-        g = np.asarray(log["gt_pose"]) if fleet else np.asarray(log["gt_pose"])[None]
-        out["gt"] = _pose2d(g[:, k, :3], g[:, k, 3:])
-    return out
+    """What the filter reads from a loaded log (`jaxquad.estimate.laser.laser_inputs` with the
+    stabilized scans cut to the filter's laser range limits)."""
+    return laser_inputs(log, "stabilized", contacts, band_height, lp.laser_min_range, lp.laser_max_range,
+                        observer_params)  # fmt: skip
 
 
 def localize_log(

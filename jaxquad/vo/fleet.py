@@ -124,7 +124,7 @@ def visual_odometry(
 
 
 def _scores(result: VoResult, i: int, gt: np.ndarray, idx: np.ndarray, p_leg, q_leg) -> dict:
-    from jaxquad.estimate.run import _trajectory_metrics
+    from jaxquad.estimate.run import trajectory_metrics
     from jaxquad.estimate.scores import odometry_scores
 
     valid = np.ones(idx.size, bool)
@@ -137,9 +137,9 @@ def _scores(result: VoResult, i: int, gt: np.ndarray, idx: np.ndarray, p_leg, q_
         "q_world_base": np.asarray(q_leg)[i, idx],
     }
     return {
-        "vo": {"trajectory": _trajectory_metrics(result.t, est, gt, valid),
+        "vo": {"trajectory": trajectory_metrics(result.t, est, gt, valid),
                "drift": odometry_scores(est["p_world_base"], est["q_world_base"], gt, valid)},
-        "leg_odometry": {"trajectory": _trajectory_metrics(result.t, leg, gt, valid),
+        "leg_odometry": {"trajectory": trajectory_metrics(result.t, leg, gt, valid),
                          "drift": odometry_scores(leg["p_world_base"], leg["q_world_base"], gt, valid)},
     }  # fmt: skip
 

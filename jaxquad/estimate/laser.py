@@ -1,0 +1,98 @@
+"""What 2D laser consumers (localization, SLAM) read from a robot log: the estimator's leg-inertial
+odometry, its scans and its leg-odometry twist, all at the depth frames.
+
+The leg-odometry twist is put in the plane: with R_level_base(roll, pitch) the base-to-levelled
+rotation, (vx, vy) = rows 0-1 of R_level_base v_base and the yaw rate = row 2 of R_level_base
+omega_base; its covariance is R cov_v_base R^T (rows 0-1) and `yaw_rate_std`^2 (the estimator
+reports no yaw-rate covariance: the gyro's error, bias included, is a setting).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxquad.estimate.scans import frame_samples, log_scans
+from jaxquad.kernels.lie import R_level_base, roll_pitch, yaw_of
+
+SCAN_KINDS = ("stabilized", "baseline", "level")
+
+
+def pose2d(p: np.ndarray, q_wxyz: np.ndarray) -> np.ndarray:
+    """(x, y, yaw) rows of positions (..., 3) and w x y z quaternions (..., 4)."""
+    return np.concatenate([p[..., :2], np.asarray(yaw_of(jnp.asarray(q_wxyz)))[..., None]], -1)
+
+
+@jax.jit
+def _planar_twist(q_wxyz, v_base, omega_base, cov_v_base, yaw_rate_std):
+    def one(q, v, w, cov):
+        R = R_level_base(*roll_pitch(q))
+        cov2 = jnp.zeros((3, 3)).at[:2, :2].set(R[:2] @ cov @ R[:2].T).at[2, 2].set(yaw_rate_std**2)
+        return jnp.concatenate([(R @ v)[:2], (R @ w)[2:]]), cov2
+
+    return jax.vmap(one)(q_wxyz, v_base, omega_base, cov_v_base)
+
+
+def laser_inputs(
+    log: Mapping,
+    scans: str = "stabilized",
+    contacts: str = "mixed",
+    band_height: int = 5,
+    range_min: float = 0.2,
+    range_max: float = 8.0,
+    observer_params=None,
+    yaw_rate_std: float = 0.02,
+) -> dict:
+    """Per robot (leading axis N) at the F depth frames: t (F,) s, odom (N, F, 3) leg-inertial odometry
+    x y yaw, ranges (N, F, W) m of the `scans` kind, bearings (W,) rad, T_base_laser (3,), valid (N, F),
+    lo_twist (N, F, 3) planar leg-odometry twist, lo_twist_cov (N, F, 3, 3), lo_valid (N, F) and, with
+    ground truth, gt (N, F, 3). `observer_params`: a contact-observer file (as `jaxquad estimate --params`)."""
+    from jaxquad.estimate.run import estimate_log
+    from jaxquad.estimate.run import load_params as load_observer_params
+    from jaxquad.robots import load
+
+    if scans not in SCAN_KINDS:
+        raise ValueError(f"scans must be one of {SCAN_KINDS}, got {scans!r}")
+    if "depth" not in log:
+        raise ValueError("the log has no depth images: 2D scans are sliced from them")
+    robot = load(str(np.asarray(log["robot"])))
+    obs = load_observer_params(observer_params, len(robot.foot_names), contacts)
+    _, _, est = estimate_log(log, contacts, obs, robot)
+    fleet = "fallen" in log
+    t, depth_t = np.asarray(log["t"], np.float64), np.asarray(log["depth_t"], np.float64)
+    k = frame_samples(t, depth_t)
+    n = est.p_world_base.shape[0]
+    depth = np.asarray(log["depth"]) if fleet else np.asarray(log["depth"])[None]
+    ranges, bearings = [], None
+    for i in range(n):
+        sc = log_scans(depth[i], depth_t, np.asarray(log["K"]), t, est.q_world_base[i], band_height, range_min,
+                       range_max, level=scans == "level")  # fmt: skip
+        r, b = {"stabilized": (sc.ranges_stabilized, sc.bearings), "baseline": (sc.ranges_baseline, sc.bearings),
+                "level": (sc.ranges_level, sc.bearings_level)}[scans]  # fmt: skip
+        ranges.append(np.asarray(r))
+        bearings = np.asarray(b)
+    twist, twist_cov = _planar_twist(
+        jnp.asarray(est.q_world_base[:, k].reshape(-1, 4), jnp.float32),
+        jnp.asarray(est.v_base[:, k].reshape(-1, 3), jnp.float32),
+        jnp.asarray(est.omega_base[:, k].reshape(-1, 3), jnp.float32),
+        jnp.asarray(est.cov_v_base[:, k].reshape(-1, 3, 3), jnp.float32),
+        jnp.asarray(yaw_rate_std, jnp.float32),
+    )
+    T_base_camera = np.asarray(log["T_base_camera"])
+    valid = np.asarray(log["valid"])[:, k] if "valid" in log else np.ones((n, k.size), bool)
+    lo_valid = valid & ~np.asarray(est.flags.fallen)[:, k] & ~np.asarray(est.flags.no_stance)[:, k]
+    out = {
+        "t": depth_t, "odom": pose2d(est.p_world_base[:, k], est.q_world_base[:, k]), "ranges": np.stack(ranges),
+        "bearings": bearings,
+        # The scans are levelled along the base's heading: the laser sits at the camera's x y, yaw 0.
+        "T_base_laser": np.array([T_base_camera[0, 3], T_base_camera[1, 3], 0.0]),
+        "valid": valid, "lo_twist": np.asarray(twist).reshape(n, -1, 3),
+        "lo_twist_cov": np.asarray(twist_cov).reshape(n, -1, 3, 3), "lo_valid": lo_valid,
+    }  # fmt: skip
+    if "gt_pose" in log:
+        g = np.asarray(log["gt_pose"]) if fleet else np.asarray(log["gt_pose"])[None]
+        out["gt"] = pose2d(g[:, k, :3], g[:, k, 3:])
+    return out

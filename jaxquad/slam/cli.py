@@ -1,0 +1,159 @@
+"""`jaxquad slam INPUT --out DIR`: online 2D graph SLAM with leg-odometry constraints over a robot log
+(the estimator's scans and odometry) or a 2D laser log (CARMEN text or the `.npz` laser-log form).
+
+A fleet log writes one folder per robot (DIR/robot_000, ...); a single robot or laser log writes into
+DIR. Every folder holds trajectory.tum, trajectory_final.tum, map.pgm + map.yaml and graph.g2o
+(`jaxquad.slam.report`); DIR/summary.json holds the parameters used and per robot the node, edge and
+loop-closure counts and, with ground truth, the trajectory and map scores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+from pathlib import Path
+
+import numpy as np
+
+SUMMARY_KIND = "jaxquad slam"
+FORMATS = ("auto", "robot", "carmen", "laser-npz")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("input", help="robot log (.npz), CARMEN log (text, .gz too) or laser log (.npz)")
+    parser.add_argument("--out", required=True, help="output folder (created; an earlier SLAM output is replaced)")
+    parser.add_argument("--format", choices=FORMATS, default="auto",
+                        help="input kind (default auto: found from the file's content)")
+    parser.add_argument("--scans", choices=("stabilized", "baseline", "level"), default="stabilized",
+                        help="robot logs: which 2D scan of the depth images (default stabilized)")
+    parser.add_argument("--odometry", choices=("lo",), default="lo",
+                        help="robot logs: odometry of the scans (default lo, the leg-inertial odometry)")
+    parser.add_argument("--lo-constraints", choices=("off", "velocity", "preintegrated"), default="preintegrated",
+                        help="leg-odometry edges between consecutive nodes (default preintegrated; laser logs: off)")
+    parser.add_argument("--params", default=None,
+                        help="SLAM parameters (YAML; any subset of jaxquad/slam/slam.yaml; default: that file)")
+    parser.add_argument("--contacts", choices=("observer", "mixed", "sensor", "truth"), default="mixed",
+                        help="robot logs: contact source of the leg odometry (default mixed)")
+    parser.add_argument("--observer-params", default=None,
+                        help="robot logs: contact-observer parameters (as `jaxquad estimate --params`; default: the paper's)")  # fmt: skip
+    parser.add_argument("--band-height", type=int, default=5, help="robot logs: scan band height in px (default 5)")
+    parser.add_argument("--true-map", nargs="+", default=None,
+                        help="ground-truth map YAML(s) for map scores, robot i on map world_index[i] (default: the "
+                             "map_<world>_<k>.yaml files beside a simulated log, if any)")  # fmt: skip
+    parser.add_argument("--flaser-fov-deg", type=float, default=180.0,
+                        help="CARMEN FLASER lines: field of view of the beams (deg, default 180)")
+
+
+def detect_format(path: Path) -> str:
+    """robot / laser-npz from an .npz's keys, else carmen (text)."""
+    with open(path, "rb") as f:
+        head = f.read(4)
+    if head != b"PK\x03\x04":
+        return "carmen"
+    with np.load(path, allow_pickle=False) as z:
+        keys = set(z.files)
+    if {"scan_t", "ranges", "bearings"} <= keys:
+        return "laser-npz"
+    return "robot"
+
+
+def _true_maps(args, log_path: Path):
+    from jaxquad.io import load_map
+
+    paths = args.true_map
+    if paths is None:
+        found = [(p, re.fullmatch(r"map_.+_(\d+)\.yaml", p.name)) for p in log_path.parent.glob("map_*_*.yaml")]
+        paths = [p for p, m in sorted(((p, m) for p, m in found if m), key=lambda pm: int(pm[1].group(1)))]
+    return [load_map(p) for p in paths]
+
+
+def _load(args, path: Path, fmt: str, values: dict):
+    """(inputs dict, robot names, true maps per robot or None, lo_constraints used)."""
+    from jaxquad.io.carmen import load_laser_log, read_carmen
+
+    if fmt in ("carmen", "laser-npz"):
+        from jaxquad.slam.run import laser_log_inputs
+
+        log = read_carmen(path, args.flaser_fov_deg) if fmt == "carmen" else load_laser_log(path)
+        return laser_log_inputs(log), ["robot"], None, "off"
+    from jaxquad.estimate.laser import laser_inputs
+    from jaxquad.io import load_log
+
+    log = load_log(path)
+    x = laser_inputs(log, args.scans, args.contacts, args.band_height, 0.2, values["max_laser_range"],
+                     args.observer_params, values["leg_yaw_rate_std"])  # fmt: skip
+    n = x["odom"].shape[0]
+    fleet = "fallen" in log
+    names = [f"robot_{i:03d}" for i in range(n)] if fleet else ["robot"]
+    maps = _true_maps(args, path)
+    per_robot = None
+    if maps:
+        world = np.asarray(log["world_index"]) if "world_index" in log else np.zeros(n, int)
+        per_robot = [maps[int(w) % len(maps)] for w in world]
+    return x, names, per_robot, args.lo_constraints
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from jaxquad.io import atomic_dir, check_output_dir, to_json, write_json
+    from jaxquad.slam import report
+    from jaxquad.slam.params import DEFAULTS_FILE, load_params, slam_config
+    from jaxquad.slam.run import final_poses, map_grid, run_fleet
+
+    path = Path(args.input)
+    if not path.is_file():
+        raise FileNotFoundError(f"input not found: {path}")
+    if args.band_height < 1:
+        raise ValueError(f"--band-height must be >= 1, got {args.band_height}")
+    check_output_dir(args.out, kind=SUMMARY_KIND)
+    values = load_params(args.params)
+    fmt = detect_format(path) if args.format == "auto" else args.format
+    x, names, true_maps, lo_constraints = _load(args, path, fmt, values)
+    grid = map_grid(x, values["resolution"], values["max_laser_range"])
+    spec, params = slam_config(values, grid, lo_constraints, x["T_base_laser"])
+
+    bar = tqdm(total=None, desc=f"slam {len(names)} robot(s)", unit="scan")
+
+    def progress(done: int, total: int) -> None:
+        bar.total = total
+        bar.update(done - bar.n)
+
+    try:
+        state, out, _ = run_fleet(spec, params, x, progress)
+    finally:
+        bar.close()
+    final = final_poses(state, out)
+    t = np.asarray(x["t"], np.float64)
+    summary = {
+        "kind": SUMMARY_KIND, "input": str(path), "format": fmt, "scans": args.scans if fmt == "robot" else "laser",
+        "odometry": args.odometry if fmt == "robot" else "log", "lo_constraints": lo_constraints,
+        "params_file": str(args.params or DEFAULTS_FILE), "params": values,
+        "grid": {k: getattr(grid, k) for k in ("rows", "cols", "resolution", "origin_x", "origin_y", "max_range")},
+        "robots": [],
+    }  # fmt: skip
+    with atomic_dir(args.out) as tmp:
+        for i, name in enumerate(names):
+            folder = tmp if len(names) == 1 else tmp / name
+            folder.mkdir(exist_ok=True)
+            s_i, o_i = (report.robot_slice(a, i) for a in (state, out))
+            report.write_robot(folder, grid, t, s_i, o_i, final[i])
+            rep = report.robot_report(spec, t, s_i, o_i, final[i], x, i, None if true_maps is None else true_maps[i])
+            summary["robots"].append({"name": name, **rep})
+        write_json(tmp / "summary.json", summary)
+    print(to_json(_brief(summary, args.out)))
+    return 0
+
+
+def _brief(summary: dict, out) -> dict:
+    robots = summary["robots"]
+    brief = {"robots": len(robots), "out": str(out), "lo_constraints": summary["lo_constraints"],
+             "nodes": [r["nodes"] for r in robots], "loop_closures": [r["loop_closures"] for r in robots]}  # fmt: skip
+    for which in ("odometry", "online", "final"):
+        ate = [r["scores"][which]["ate"]["rmse"] for r in robots if "ate" in r.get("scores", {}).get(which, {})]
+        if ate:
+            brief[f"ate_{which}_m_mean"] = float(np.mean(ate))
+    iou = [r["map_scores"]["iou"] for r in robots if "map_scores" in r]
+    if iou:
+        brief["map_iou_mean"] = float(np.mean(iou))
+    return brief

@@ -1,0 +1,414 @@
+"""Online 2D graph SLAM with leg-odometry constraints (Karto / slam_toolbox style), one robot per call.
+
+    state = init(spec, params, bearings)
+    state, out = step(spec, params, state, inputs)      # once per scan, in time order
+    state = finish(spec, params, state)                  # last optimization and map
+
+Everything lives in fixed-capacity arrays (`SlamSpec.nodes` node slots, 3 edge slots per node), so
+`step` jits once, runs inside `lax.scan` and `vmap`s over a fleet. Nodes hold base poses (x, y,
+theta) in the map frame, which is the odometry frame at the first scan.
+
+Per scan (`SlamInputs`): the odometry pose predicts the base pose from the last node. A node is
+added on the first scan of each `min_interval`-long slot of the clock (t // min_interval changes)
+when the robot has moved `min_travel` m or turned `min_rotation` rad since the last node (the first
+usable scan is always a node): slam_toolbox's time and travel thresholds, with the time one on a
+shared clock so that the robots of a fleet add their nodes on the same scans (see `_run_if`). A new
+node's scan is matched (`kernels.scan_match`, the exact multi-resolution correlative search) against the running buffer: the last `SlamSpec.buffer` nodes
+within `buffer_distance` m, smeared into one likelihood grid. The match gives an edge from the last
+node (its covariance rotated into the node's frame); a response under `link_min_response` gives the
+odometry step instead, with `odom_fallback_std`.
+
+Leg-odometry constraints (`SlamSpec.lo_constraints`), one more edge from the last node:
+  off            none: the node is where the scan matched (Karto's behaviour).
+  velocity       the authors' form: the earlier node's leg-odometry twist (vx, vy, omega) times the
+                 time between the nodes (< `velocity_max_dt` s), information inv(diag(velocity_cov))
+                 not scaled by time. As a g2o edge its error is the authors' residual with the
+                 translation rotated into node i's frame: the same cost with an isotropic x-y covariance.
+  preintegrated  ours: the leg-odometry pose change between the two node stamps, with the covariance
+                 propagated from the twist covariance at each scan: Sigma <- Ad(D^-1) Sigma Ad(D^-1)^T +
+                 Q dt correlation, D the scan-to-scan change, Q the (vx, vy, omega) covariance, the twist
+                 error taken as white noise with `lo_correlation_s` of correlation time.
+With a constraint the new node's pose is the optimum of the match edge (Cauchy-robust, width
+`solver.robust_width` in chi-square units) and the leg-odometry edge, the last node held: a scan
+that matches far from where the legs say the robot went is overruled instead of yanking the path.
+
+Then the loop-closure search (`kernels.loop_closure`) runs for the new node; an accepted closure adds
+its edge and the whole graph is optimized (`kernels.posegraph`, node 0 fixed). The occupancy map
+takes every node's scan at its node's pose; after an optimization it is redrawn from all nodes
+(`SlamSpec.refresh_map`; a fleet may clear that and call `refresh_map` itself).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from jaxquad.kernels.lie import se2, xy_theta
+from jaxquad.kernels.loop_closure import LoopParams, LoopSpec, find_loop_closure
+from jaxquad.kernels.occupancy import GridSpec, OccupancyGrid, OccupancyParams, init_grid, insert_scan
+from jaxquad.kernels.posegraph import ROBUST_CAUCHY, ROBUST_NONE, PoseGraph, SolverParams, optimize
+from jaxquad.kernels.scan_grid import MatchParams, MatchSpec, likelihood_grid, world_points
+from jaxquad.kernels.scan_match import match_scan
+
+LO_CONSTRAINTS = ("off", "velocity", "preintegrated")
+EDGE_MATCH, EDGE_ODOMETRY, EDGE_LEG, EDGE_LOOP = 0, 1, 2, 3  # what each edge slot holds
+
+
+class SlamSpec(eqx.Module):
+    """Static structure: capacities, search sizes, the map's geometry and the constraint kind."""
+
+    grid: GridSpec = eqx.field(static=True)
+    nodes: int = eqx.field(static=True, default=1024)  # node capacity; 3 edge slots each
+    buffer: int = eqx.field(static=True, default=70)  # running-buffer scans (slam_toolbox's scan_buffer_size)
+    match: MatchSpec = eqx.field(static=True, default_factory=MatchSpec)
+    loop: LoopSpec = eqx.field(static=True, default_factory=LoopSpec)
+    lo_constraints: str = eqx.field(static=True, default="preintegrated")
+    refresh_map: bool = eqx.field(static=True, default=True)
+
+    def __check_init__(self):
+        if self.lo_constraints not in LO_CONSTRAINTS:
+            raise ValueError(f"lo_constraints must be one of {LO_CONSTRAINTS}, got {self.lo_constraints!r}")
+
+    @property
+    def edges(self) -> int:
+        return 3 * self.nodes
+
+
+def _f(x) -> Array:
+    return jnp.asarray(x, jnp.float32)
+
+
+class SlamParams(eqx.Module):
+    """Tunable numbers (traced leaves; sweeps never recompile). Defaults: the paper's SLAM settings."""
+
+    match: MatchParams = eqx.field(default_factory=MatchParams)
+    loop: LoopParams = eqx.field(default_factory=LoopParams)
+    occupancy: OccupancyParams = eqx.field(default_factory=OccupancyParams)
+    solver: SolverParams = eqx.field(default_factory=lambda: SolverParams(robust_width=jnp.asarray(3.0)))
+    T_base_laser: Float[Array, "3"] = eqx.field(default_factory=lambda: jnp.zeros(3))  # x, y (m), theta (rad)
+    min_travel: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.1))  # m
+    min_rotation: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.02))  # rad
+    min_interval: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.5))  # s
+    buffer_distance: Float[Array, ""] = eqx.field(default_factory=lambda: _f(20.0))  # m
+    link_min_response: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.1))
+    odom_fallback_std: Float[Array, "3"] = eqx.field(default_factory=lambda: _f([0.05, 0.05, 0.05]))  # m, m, rad
+    velocity_cov: Float[Array, "3"] = eqx.field(default_factory=lambda: _f([0.1, 0.1, 0.05]))  # (m/s)^2, (rad/s)^2
+    velocity_max_dt: Float[Array, ""] = eqx.field(default_factory=lambda: _f(5.0))  # s
+    lo_correlation_s: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.1))  # s
+
+
+class SlamInputs(eqx.Module):
+    """One scan with its odometry and (optional) leg odometry."""
+
+    t: Float[Array, ""]  # s
+    odom: Float[Array, "3"]  # odometry pose of the base x, y (m), theta (rad)
+    ranges: Float[Array, " b"]  # m; +inf: no return; NaN: invalid
+    valid: Bool[Array, " b"]
+    lo_pose: Float[Array, "3"]  # leg-odometry pose of the base (its own frame)
+    lo_twist: Float[Array, "3"]  # leg-odometry vx, vy (m/s, base frame), yaw rate (rad/s)
+    lo_twist_cov: Float[Array, "3 3"]  # covariance of lo_twist
+    lo_valid: Bool[Array, ""]  # leg odometry available at this scan
+
+
+class SlamState(eqx.Module):
+    graph: PoseGraph  # node poses (base, map frame) and edges
+    n_nodes: Int[Array, ""]
+    n_edges: Int[Array, ""]
+    edge_kind: Int[Array, " m"]  # EDGE_* per slot
+    node_t: Float[Array, " n"]
+    node_odom: Float[Array, "n 3"]
+    node_lo: Float[Array, "n 3"]
+    node_lo_valid: Bool[Array, " n"]
+    node_twist: Float[Array, "n 3"]
+    ranges: Float[Array, "n b"]
+    valid: Bool[Array, "n b"]
+    bearings: Float[Array, " b"]
+    lo_cov: Float[Array, "3 3"]  # leg-odometry covariance accumulated since the last node
+    lo_prev: Float[Array, "3"]  # leg-odometry pose at the previous scan
+    t_prev: Float[Array, ""]
+    lo_ok: Bool[Array, ""]  # leg odometry valid at every scan since the last node
+    grid: OccupancyGrid
+    map_stale: Bool[Array, ""]  # poses moved since the map was drawn
+    loops: Int[Array, ""]  # accepted loop closures
+    full: Bool[Array, ""]  # node capacity reached: later scans add no node
+
+
+class SlamOutput(eqx.Module):
+    pose: Float[Array, "3"]  # base pose in the map frame as estimated at this scan
+    node: Int[Array, ""]  # the node this scan hangs from (-1 before the first node)
+    T_node_scan: Float[Array, "3"]  # the scan's base pose in that node's frame (odometry)
+    added: Bool[Array, ""]  # this scan became a node
+    response: Float[Array, ""]  # scan-match response of a new node (NaN otherwise)
+    loop_closed: Bool[Array, ""]
+    loop_node: Int[Array, ""]  # the old node of an accepted closure (-1 otherwise)
+
+
+def init(spec: SlamSpec, params: SlamParams, bearings: Float[Array, " b"]) -> SlamState:
+    n, m, b = spec.nodes, spec.edges, bearings.shape[0]
+    graph = PoseGraph(
+        poses=jnp.zeros((n, 3)), node_mask=jnp.zeros(n, bool), fixed=jnp.arange(n) == 0,
+        edge_i=jnp.zeros(m, jnp.int32), edge_j=jnp.zeros(m, jnp.int32), measurement=jnp.zeros((m, 3)),
+        information=jnp.zeros((m, 3, 3)), edge_mask=jnp.zeros(m, bool), robust=jnp.zeros(m, jnp.int32),
+    )  # fmt: skip
+    zero_i, zero_f = jnp.asarray(0, jnp.int32), jnp.asarray(0.0)
+    return SlamState(
+        graph=graph, n_nodes=zero_i, n_edges=zero_i, edge_kind=jnp.zeros(m, jnp.int32), node_t=jnp.zeros(n),
+        node_odom=jnp.zeros((n, 3)), node_lo=jnp.zeros((n, 3)), node_lo_valid=jnp.zeros(n, bool),
+        node_twist=jnp.zeros((n, 3)), ranges=jnp.full((n, b), jnp.nan), valid=jnp.zeros((n, b), bool),
+        bearings=_f(bearings), lo_cov=jnp.zeros((3, 3)), lo_prev=jnp.zeros(3), t_prev=zero_f,
+        lo_ok=jnp.asarray(False), grid=init_grid(spec.grid), map_stale=jnp.asarray(False), loops=zero_i,
+        full=jnp.asarray(False),
+    )  # fmt: skip
+
+
+def _sensor(params: SlamParams, base: Float[Array, "*n 3"]) -> Float[Array, "*n 3"]:
+    return xy_theta(se2(base) @ se2(params.T_base_laser))
+
+
+def _base(params: SlamParams, sensor: Float[Array, "3"]) -> Float[Array, "3"]:
+    return xy_theta(se2(sensor) @ se2(params.T_base_laser).inverse())
+
+
+def _between(a: Float[Array, "3"], b: Float[Array, "3"]) -> Float[Array, "3"]:
+    return xy_theta(se2(a).inverse() @ se2(b))
+
+
+def _compose(a: Float[Array, "3"], d: Float[Array, "3"]) -> Float[Array, "3"]:
+    return xy_theta(se2(a) @ se2(d))
+
+
+def _rotate_cov(theta: Float[Array, ""], cov_world: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
+    """A (x, y world, theta) covariance as the right perturbation of a pose with heading theta."""
+    c, s = jnp.cos(theta), jnp.sin(theta)
+    R = jnp.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return R.T @ cov_world @ R
+
+
+def _to_base_cov(params: SlamParams, cov_sensor: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
+    """Right-perturbation covariance of a sensor pose -> of its base pose (T_base = T_sensor L^-1)."""
+    A = se2(params.T_base_laser).adjoint()
+    return A @ cov_sensor @ A.T
+
+
+def _information(cov: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
+    cov = 0.5 * (cov + cov.T) + 1e-9 * jnp.eye(3)
+    return jnp.linalg.inv(cov)
+
+
+def _add_edge(state: SlamState, i, j, z, info, robust, kind, keep) -> SlamState:
+    k = state.n_edges
+    g = state.graph
+    g = eqx.tree_at(
+        lambda g: (g.edge_i, g.edge_j, g.measurement, g.information, g.edge_mask, g.robust),
+        g,
+        (
+            g.edge_i.at[k].set(jnp.where(keep, i, g.edge_i[k])),
+            g.edge_j.at[k].set(jnp.where(keep, j, g.edge_j[k])),
+            g.measurement.at[k].set(jnp.where(keep, z, g.measurement[k])),
+            g.information.at[k].set(jnp.where(keep, info, g.information[k])),
+            g.edge_mask.at[k].set(keep | g.edge_mask[k]),
+            g.robust.at[k].set(jnp.where(keep, robust, g.robust[k])),
+        ),
+    )
+    kinds = state.edge_kind.at[k].set(jnp.where(keep, kind, state.edge_kind[k]))
+    return eqx.tree_at(lambda s: (s.graph, s.n_edges, s.edge_kind), state, (g, k + keep.astype(jnp.int32), kinds))
+
+
+def _match_buffer(spec: SlamSpec, params: SlamParams, state: SlamState, pred: Float[Array, "3"], inp: SlamInputs):
+    """Correlative match of the scan against the running buffer around the predicted base pose."""
+    K = min(spec.buffer, spec.nodes)
+    idx = state.n_nodes - 1 - jnp.arange(K)
+    ok = idx >= 0
+    idx = jnp.clip(idx, 0)
+    near = jnp.linalg.norm(state.graph.poses[idx, :2] - pred[:2], axis=-1) <= params.buffer_distance
+    use = ok & near & state.graph.node_mask[idx]
+    sensor = _sensor(params, state.graph.poses[idx])
+    pts, mask = world_points(params.match, sensor, state.ranges[idx], state.bearings, state.valid[idx] & use[:, None])
+    prior = _sensor(params, pred)
+    grid = likelihood_grid(spec.match, params.match, prior[:2], pts, mask)
+    res = match_scan(spec.match, params.match, grid, prior, inp.ranges, state.bearings, inp.valid)
+    good = jnp.any(mask) & (res.response >= params.link_min_response) & jnp.all(jnp.isfinite(res.pose))
+    cov = _to_base_cov(params, _rotate_cov(res.pose[2], res.covariance))
+    return _base(params, res.pose), cov, res.response, good
+
+
+def _fuse(params: SlamParams, x_i, z_match, info_match, z_leg, info_leg) -> Float[Array, "3"]:
+    """The new node's pose from its match edge (Cauchy) and leg-odometry edge, node i held."""
+    z = jnp.stack([z_match, z_leg])
+    g = PoseGraph(
+        poses=jnp.stack([x_i, _compose(x_i, z_match)]), node_mask=jnp.ones(2, bool), fixed=jnp.array([True, False]),
+        edge_i=jnp.zeros(2, jnp.int32), edge_j=jnp.ones(2, jnp.int32), measurement=z,
+        information=jnp.stack([info_match, info_leg]), edge_mask=jnp.ones(2, bool),
+        robust=jnp.array([ROBUST_CAUCHY, ROBUST_NONE], jnp.int32),
+    )  # fmt: skip
+    out, _ = optimize(g, params.solver)
+    return out.poses[1]
+
+
+def _leg_edge(spec: SlamSpec, params: SlamParams, state: SlamState, last, inp: SlamInputs):
+    """(measurement, information, usable) of the leg-odometry edge from node `last` to the new node."""
+    if spec.lo_constraints == "velocity":
+        dt = inp.t - state.node_t[last]
+        z = state.node_twist[last] * dt
+        ok = state.node_lo_valid[last] & (dt > 0) & (dt < params.velocity_max_dt)
+        return z, jnp.diag(1.0 / params.velocity_cov), ok & jnp.all(jnp.isfinite(z))
+    z = _between(state.node_lo[last], inp.lo_pose)
+    ok = state.node_lo_valid[last] & state.lo_ok & inp.lo_valid & jnp.all(jnp.isfinite(z))
+    return z, _information(state.lo_cov), ok & jnp.all(jnp.isfinite(state.lo_cov))
+
+
+def _add_node(spec: SlamSpec, params: SlamParams, state: SlamState, pred, inp: SlamInputs):
+    j, last = state.n_nodes, jnp.maximum(state.n_nodes - 1, 0)
+    first = j == 0
+    matched, cov_match, response, good = _match_buffer(spec, params, state, pred, inp)
+    x_last = state.graph.poses[last]
+    fallback = _information(jnp.diag(params.odom_fallback_std**2))
+    z_link = jnp.where(good, _between(x_last, matched), _between(x_last, pred))
+    info_link = jnp.where(good, _information(cov_match), fallback)
+    pose = jnp.where(good, matched, pred)
+    if spec.lo_constraints != "off":
+        z_leg, info_leg, leg_ok = _leg_edge(spec, params, state, last, inp)
+        leg_ok = leg_ok & ~first
+        fused = _fuse(params, x_last, z_link, info_link, jnp.where(leg_ok, z_leg, 0.0), info_leg)
+        pose = jnp.where(leg_ok, fused, pose)
+    pose = jnp.where(first, pred, pose)
+
+    g = state.graph
+    g = eqx.tree_at(lambda g: (g.poses, g.node_mask), g, (g.poses.at[j].set(pose), g.node_mask.at[j].set(True)))
+    state = eqx.tree_at(
+        lambda s: (s.graph, s.n_nodes, s.node_t, s.node_odom, s.node_lo, s.node_lo_valid, s.node_twist, s.ranges,
+                   s.valid, s.lo_cov, s.lo_ok),
+        state,
+        (g, j + 1, state.node_t.at[j].set(inp.t), state.node_odom.at[j].set(inp.odom),
+         state.node_lo.at[j].set(inp.lo_pose), state.node_lo_valid.at[j].set(inp.lo_valid),
+         state.node_twist.at[j].set(inp.lo_twist), state.ranges.at[j].set(inp.ranges),
+         state.valid.at[j].set(inp.valid), jnp.zeros((3, 3)), inp.lo_valid),
+    )  # fmt: skip
+    link_kind = jnp.where(good, EDGE_MATCH, EDGE_ODOMETRY)
+    link_robust = jnp.where(good, ROBUST_CAUCHY, ROBUST_NONE)
+    state = _add_edge(state, last, j, z_link, info_link, link_robust, link_kind, ~first)
+    if spec.lo_constraints != "off":
+        state = _add_edge(state, last, j, z_leg, info_leg, ROBUST_NONE, EDGE_LEG, leg_ok)
+    grid = _insert(spec, params, state.grid, pose, inp.ranges, inp.valid, state.bearings)
+    state = eqx.tree_at(lambda s: s.grid, state, grid)
+    return _close_loop(spec, params, state, j, jnp.where(first, jnp.nan, response))
+
+
+def _insert(spec: SlamSpec, params: SlamParams, grid: OccupancyGrid, base, ranges, valid, bearings) -> OccupancyGrid:
+    r = jnp.where(valid, ranges, jnp.nan)  # NaN rays are ignored by the map
+    return insert_scan(spec.grid, params.occupancy, grid, _sensor(params, base), r, bearings)
+
+
+def _close_loop(spec: SlamSpec, params: SlamParams, state: SlamState, j, response):
+    g = state.graph
+    cand = find_loop_closure(
+        spec.loop, params.loop, _sensor(params, g.poses), state.ranges, state.valid, state.bearings, g.node_mask, j
+    )
+    L = se2(params.T_base_laser)
+    z = xy_theta(L @ se2(cand.T_i_j) @ L.inverse())
+    state = _add_edge(
+        state, cand.i, j, z, _information(_to_base_cov(params, cand.covariance)), ROBUST_NONE, EDGE_LOOP, cand.accept
+    )
+    # Robots without a closure run no solver iteration (the loop's trip count is 0), also under vmap.
+    trips = jnp.where(cand.accept, params.solver.max_iterations, 0)
+    solver = eqx.tree_at(lambda s: s.max_iterations, params.solver, trips)
+    graph, _ = optimize(state.graph, solver)
+    state = eqx.tree_at(
+        lambda s: (s.graph, s.loops, s.map_stale),
+        state,
+        (graph, state.loops + cand.accept, state.map_stale | cand.accept),
+    )
+    return state, response, cand.accept, jnp.where(cand.accept, cand.i, -1)
+
+
+def _run_if(pred: Bool[Array, ""], f, operand):
+    """f(operand) if pred else operand, as a loop of 0 or 1 trips. Under `vmap` a `lax.cond` runs both
+    branches for every robot; this loop runs f only when some robot of the batch needs it."""
+
+    def body(carry):
+        return carry[0] + 1, f(carry[1])
+
+    trips = pred.astype(jnp.int32)
+    return jax.lax.while_loop(lambda c: c[0] < trips, body, (jnp.asarray(0, jnp.int32), operand))[1]
+
+
+def refresh_map(spec: SlamSpec, params: SlamParams, state: SlamState) -> SlamState:
+    """The map redrawn from every node's scan at its current pose when `map_stale` (else unchanged).
+
+    The redraw loops over nodes with a trip count of 0 when the map is current, so under `vmap` it
+    costs nothing unless some robot's map is stale."""
+    count = jnp.where(state.map_stale, state.n_nodes, 0)
+    g = state.graph
+
+    def body(carry):
+        k, grid = carry
+        return k + 1, _insert(spec, params, grid, g.poses[k], state.ranges[k], state.valid[k], state.bearings)
+
+    _, grid = jax.lax.while_loop(lambda c: c[0] < count, body, (jnp.asarray(0, jnp.int32), init_grid(spec.grid)))
+    grid = jax.tree.map(lambda new, old: jnp.where(state.map_stale, new, old), grid, state.grid)
+    return eqx.tree_at(lambda s: (s.grid, s.map_stale), state, (grid, jnp.asarray(False)))
+
+
+def _accumulate_lo(params: SlamParams, state: SlamState, inp: SlamInputs) -> SlamState:
+    """Propagate the leg-odometry covariance since the last node over this scan's interval."""
+    d = _between(state.lo_prev, inp.lo_pose)
+    A = se2(d).inverse().adjoint()
+    dt = jnp.clip(inp.t - state.t_prev, 0.0)
+    cov = A @ state.lo_cov @ A.T + inp.lo_twist_cov * (params.lo_correlation_s * dt)
+    ok = state.lo_ok & inp.lo_valid & jnp.all(jnp.isfinite(d)) & jnp.all(jnp.isfinite(inp.lo_twist_cov))
+    return eqx.tree_at(lambda s: (s.lo_cov, s.lo_ok), state, (jnp.where(ok, cov, state.lo_cov), ok))
+
+
+def step(spec: SlamSpec, params: SlamParams, state: SlamState, inp: SlamInputs) -> tuple[SlamState, SlamOutput]:
+    """One scan: maybe a new node (match, leg-odometry edge, loop closure, optimization), the map."""
+    last = jnp.maximum(state.n_nodes - 1, 0)
+    first = state.n_nodes == 0
+    T_node_scan = _between(state.node_odom[last], inp.odom)
+    pred = jnp.where(first, inp.odom, _compose(state.graph.poses[last], T_node_scan))
+    if spec.lo_constraints == "preintegrated":
+        state = _accumulate_lo(params, state, inp)
+
+    moved = (jnp.linalg.norm(T_node_scan[:2]) >= params.min_travel) | (jnp.abs(T_node_scan[2]) >= params.min_rotation)
+    usable = jnp.all(jnp.isfinite(inp.odom)) & jnp.any(inp.valid & ~jnp.isnan(inp.ranges)) & jnp.isfinite(inp.t)
+    full = state.n_nodes >= spec.nodes
+    interval = jnp.maximum(params.min_interval, 1e-9)
+    new_slot = (params.min_interval <= 0) | (jnp.floor(inp.t / interval) > jnp.floor(state.t_prev / interval))
+    due = usable & ~full & (first | (moved & new_slot))
+
+    none = (state, jnp.asarray(jnp.nan), jnp.asarray(False), jnp.asarray(-1, jnp.int32))
+    state, response, closed, loop_node = _run_if(due, lambda c: _add_node(spec, params, c[0], pred, inp), none)
+    if spec.refresh_map:
+        state = refresh_map(spec, params, state)
+    new = state.n_nodes - 1
+    state = eqx.tree_at(
+        lambda s: (s.lo_prev, s.t_prev, s.full),
+        state,
+        (jnp.where(inp.lo_valid, inp.lo_pose, state.lo_prev), inp.t, state.full | (usable & full & (first | moved))),
+    )
+    out = SlamOutput(
+        pose=jnp.where(due, state.graph.poses[jnp.maximum(new, 0)], pred),
+        node=new,
+        T_node_scan=jnp.where(due, jnp.zeros(3), T_node_scan),
+        added=due,
+        response=response,
+        loop_closed=closed,
+        loop_node=loop_node,
+    )
+    return state, out
+
+
+def finish(spec: SlamSpec, params: SlamParams, state: SlamState) -> SlamState:
+    """The final optimization of the whole graph and the map drawn at the optimized poses."""
+    graph, _ = optimize(state.graph, params.solver)
+    state = eqx.tree_at(lambda s: (s.graph, s.map_stale), state, (graph, jnp.asarray(True)))
+    return refresh_map(spec, params, state)
+
+
+def scan_poses(state: SlamState, out: SlamOutput) -> Float[Array, "s 3"]:
+    """Every scan's base pose at the state's node poses: its node's pose composed with the scan's
+    odometry offset (NaN before the first node). `out` holds the scans' outputs (leading axis S)."""
+    node = jnp.maximum(out.node, 0)
+    poses = jax.vmap(_compose)(state.graph.poses[node], out.T_node_scan)
+    return jnp.where((out.node >= 0)[:, None], poses, jnp.nan)

@@ -1,0 +1,113 @@
+"""SLAM parameters from a YAML file: the package's documented defaults (`slam.yaml`) overridden by the
+user's file, every value checked (a known key, a finite number in range) with one-line errors naming
+the file and key; `slam_config` turns them into the online SLAM's static spec and traced params."""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import jax.numpy as jnp
+
+from jaxquad.kernels.loop_closure import LoopParams, LoopSpec
+from jaxquad.kernels.occupancy import GridSpec, OccupancyParams
+from jaxquad.kernels.posegraph import SolverParams
+from jaxquad.kernels.scan_grid import MatchParams, MatchSpec, cells_for_range
+from jaxquad.slam.online import SlamParams, SlamSpec
+
+DEFAULTS_FILE = Path(__file__).with_name("slam.yaml")
+_INTEGER = ("scan_buffer_size", "loop_match_minimum_chain_size", "loop_chain_scans", "node_capacity",
+            "solver_max_iterations")  # fmt: skip
+_FRACTION = ("link_match_minimum_response_fine", "loop_match_minimum_response_coarse",
+             "loop_match_minimum_response_fine", "loop_ambiguity_ratio")  # fmt: skip
+_MAY_BE_ZERO = ("minimum_travel_distance", "minimum_travel_heading", "minimum_time_interval",
+                "link_match_minimum_response_fine", "loop_match_minimum_response_coarse",
+                "loop_match_minimum_response_fine", "loop_minimum_travel", "loop_ambiguity_distance")  # fmt: skip
+
+
+def _read(path: Path) -> dict:
+    import yaml
+
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as e:
+        line = getattr(getattr(e, "problem_mark", None), "line", None)
+        raise ValueError(f"params file {path}: not valid YAML" + (f" (line {line + 1})" if line is not None else ""))
+    raw = {} if raw is None else raw
+    if not isinstance(raw, dict):
+        raise ValueError(f"params file {path}: expected a mapping of SLAM parameters")
+    return raw
+
+
+def load_params(path: str | os.PathLike | None = None) -> dict:
+    """The values of slam.yaml overridden by the file at `path` (checked)."""
+    values = _read(DEFAULTS_FILE)
+    source = DEFAULTS_FILE
+    if path is not None:
+        source = Path(path)
+        if not source.is_file():
+            raise FileNotFoundError(f"params file not found: {source}")
+        user = _read(source)
+        unknown = sorted(set(user) - set(values))
+        if unknown:
+            raise ValueError(f"params file {source}: unknown key(s) {unknown}; known: {sorted(values)}")
+        values |= user
+    for key, v in values.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ValueError(f"params file {source}: {key} must be a finite number, got {v!r}")
+        if key in _INTEGER:
+            if v != int(v):
+                raise ValueError(f"params file {source}: {key} must be an integer, got {v!r}")
+            values[key] = int(v)
+        if v < 0 or (v == 0 and key not in _MAY_BE_ZERO) or (key in _FRACTION and v > 1):
+            raise ValueError(f"params file {source}: {key} = {v!r} is out of range")
+    if values["loop_chain_scans"] < 1 or values["coarse_angle_resolution"] > values["coarse_search_angle_offset"]:
+        raise ValueError(f"params file {source}: coarse_angle_resolution must not exceed coarse_search_angle_offset")
+    return values
+
+
+def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=(0.0, 0.0, 0.0)):
+    """(SlamSpec, SlamParams) of checked `values` (from `load_params`) for a map `grid`."""
+    v = values
+    res = v["correlation_search_space_resolution"]
+    window = max(1, round(v["correlation_search_space_dimension"] / 2 / res))
+    deg = math.degrees
+    match = MatchSpec(
+        cells=cells_for_range(v["match_max_range"], res, window), resolution=res, window_cells=window,
+        angle_window_deg=deg(v["coarse_search_angle_offset"]), angle_step_deg=deg(v["coarse_angle_resolution"]),
+        fine_angle_step_deg=deg(v["fine_search_angle_offset"]),
+    )  # fmt: skip
+    loop_res = v["loop_search_space_resolution"]
+    loop_window = max(1, round(v["loop_search_space_dimension"] / 2 / loop_res))
+    coarse = MatchSpec.loop(
+        cells=cells_for_range(v["match_max_range"], loop_res, loop_window), resolution=loop_res,
+        window_cells=loop_window, angle_window_deg=match.angle_window_deg, angle_step_deg=match.angle_step_deg,
+        fine_angle_step_deg=match.fine_angle_step_deg,
+    )  # fmt: skip
+    spec = SlamSpec(
+        grid=grid, nodes=v["node_capacity"], buffer=v["scan_buffer_size"], match=match,
+        loop=LoopSpec(coarse=coarse, fine=match, chain=v["loop_chain_scans"]), lo_constraints=lo_constraints,
+    )  # fmt: skip
+    f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    mp = MatchParams(smear_sigma=f(v["correlation_search_space_smear_deviation"]), range_max=f(v["match_max_range"]))
+    params = SlamParams(
+        match=mp,
+        loop=LoopParams(
+            match=mp, search_radius=f(v["loop_search_maximum_distance"]),
+            min_chain=jnp.asarray(v["loop_match_minimum_chain_size"]), min_travel=f(v["loop_minimum_travel"]),
+            coarse_response=f(v["loop_match_minimum_response_coarse"]),
+            fine_response=f(v["loop_match_minimum_response_fine"]),
+            ambiguity_distance=f(v["loop_ambiguity_distance"]), ambiguity_ratio=f(v["loop_ambiguity_ratio"]),
+        ),
+        occupancy=OccupancyParams(range_max=f(v["max_laser_range"])),
+        solver=SolverParams(robust_width=f(v["robust_width"]), max_iterations=jnp.asarray(v["solver_max_iterations"])),
+        T_base_laser=f(T_base_laser), min_travel=f(v["minimum_travel_distance"]),
+        min_rotation=f(v["minimum_travel_heading"]), min_interval=f(v["minimum_time_interval"]),
+        buffer_distance=f(v["scan_buffer_maximum_scan_distance"]),
+        link_min_response=f(v["link_match_minimum_response_fine"]),
+        odom_fallback_std=f([v["odom_fallback_std_xy"], v["odom_fallback_std_xy"], v["odom_fallback_std_yaw"]]),
+        velocity_cov=f([v["leg_velocity_var_xy"], v["leg_velocity_var_xy"], v["leg_velocity_var_yaw"]]),
+        velocity_max_dt=f(v["leg_velocity_max_dt"]), lo_correlation_s=f(v["leg_correlation_time"]),
+    )  # fmt: skip
+    return spec, params

@@ -1,0 +1,114 @@
+"""What `jaxquad slam` writes per robot: trajectories (TUM), the map, the graph (g2o) and scores.
+
+  trajectory.tum        each scan's base pose as the online SLAM estimated it at that scan (z = 0)
+  trajectory_final.tum  each scan's base pose after the last optimization, stamped with the scan's time
+  map.pgm, map.yaml     the occupancy map at the final node poses (map_server format)
+  graph.g2o             the final pose graph: nodes (base poses) and edges (matches, leg odometry, loops)
+
+Scores (with ground truth): ATE/ARE/APE/RPE and segment drift of the online, final and odometry-only
+trajectories against the truth (evo's definitions, SE(3) Umeyama alignment, 2D poses at z = 0), and
+the final map's scores against the true map (`jaxquad.metrics.map_scores`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from jaxquad.io import G2oGraph, TumTrajectory, save_map, write_g2o, write_tum
+from jaxquad.kernels.occupancy import GridSpec, OccupancyGrid
+from jaxquad.slam import online
+from jaxquad.slam.mapping import to_occupancy_map
+
+EDGE_KIND_NAMES = {online.EDGE_MATCH: "match", online.EDGE_ODOMETRY: "odometry", online.EDGE_LEG: "leg_odometry",
+                   online.EDGE_LOOP: "loop"}  # fmt: skip
+
+
+def _quat_yaw(theta: np.ndarray) -> np.ndarray:
+    """(w, x, y, z) of rotations about z."""
+    return np.stack([np.cos(theta / 2), np.zeros_like(theta), np.zeros_like(theta), np.sin(theta / 2)], -1)
+
+
+def tum_of(t: np.ndarray, pose: np.ndarray) -> TumTrajectory:
+    """The finite rows of 2D poses (S, 3) as a TUM trajectory at z = 0."""
+    keep = np.all(np.isfinite(pose), axis=1) & np.isfinite(t)
+    p = np.c_[pose[keep, :2], np.zeros(keep.sum())]
+    q = _quat_yaw(pose[keep, 2])
+    return TumTrajectory(t[keep], p, q[:, [1, 2, 3, 0]])
+
+
+def graph_of(state) -> G2oGraph:
+    """One robot's final pose graph (its used slots) as a g2o graph; node 0 fixed."""
+    n, m = int(state.n_nodes), int(state.n_edges)
+    g = state.graph
+    keep = np.asarray(g.edge_mask[:m], bool)
+    return G2oGraph(
+        ids=np.arange(n), poses=np.asarray(g.poses[:n], np.float64), fixed_ids=np.array([0]),
+        edge_ids=np.stack([np.asarray(g.edge_i[:m])[keep], np.asarray(g.edge_j[:m])[keep]], 1),
+        measurement=np.asarray(g.measurement[:m], np.float64)[keep],
+        information=np.asarray(g.information[:m], np.float64)[keep],
+    )  # fmt: skip
+
+
+def _trajectory_scores(t: np.ndarray, pose: np.ndarray, gt: np.ndarray, valid: np.ndarray) -> dict:
+    from jaxquad.estimate.run import trajectory_metrics
+
+    ok = valid & np.all(np.isfinite(pose), axis=1)
+    if ok.sum() < 3:
+        return {"error": f"only {int(ok.sum())} scans have a pose"}
+    z = np.zeros((len(t), 1))
+    est = {"p_world_base": np.c_[pose[:, :2], z], "q_world_base": _quat_yaw(pose[:, 2])}
+    truth = np.c_[gt[:, :2], z, _quat_yaw(gt[:, 2])]
+    scores = trajectory_metrics(t, est, truth, ok)
+    scores["scans_scored"] = int(ok.sum())
+    return scores
+
+
+def robot_report(
+    spec: online.SlamSpec, t: np.ndarray, state, out, final: np.ndarray, x: dict, i: int,
+    true_map=None,
+) -> dict:  # fmt: skip
+    """Counts and (with ground truth) scores of robot i; `state`/`out` hold that robot's arrays."""
+    kinds = np.asarray(state.edge_kind[: int(state.n_edges)])
+    mask = np.asarray(state.graph.edge_mask[: int(state.n_edges)], bool)
+    rep = {
+        "scans": int(len(t)), "nodes": int(state.n_nodes), "node_capacity": spec.nodes,
+        "capacity_reached": bool(state.full),
+        "edges": {name: int(((kinds == k) & mask).sum()) for k, name in EDGE_KIND_NAMES.items()},
+        "loop_closures": int(state.loops),
+        "match_response_mean": float(np.nanmean(out.response)) if np.any(np.isfinite(out.response)) else None,
+    }  # fmt: skip
+    if "gt" in x:
+        gt, valid = x["gt"][i], np.asarray(x["valid"][i], bool)
+        rep["scores"] = {
+            "online": _trajectory_scores(t, np.asarray(out.pose), gt, valid),
+            "final": _trajectory_scores(t, final, gt, valid),
+            "odometry": _trajectory_scores(t, x["odom"][i], gt, valid),
+        }
+    if true_map is not None:
+        from dataclasses import asdict
+
+        from jaxquad.metrics import map_scores
+
+        rep["map_scores"] = asdict(map_scores(to_occupancy_map(spec.grid, _grid(state)), true_map))
+    return rep
+
+
+def robot_slice(tree, i: int):
+    """Robot i's arrays of a fleet pytree."""
+    import jax
+
+    return jax.tree.map(lambda a: a[i], tree)
+
+
+def _grid(state) -> OccupancyGrid:
+    return OccupancyGrid(np.asarray(state.grid.log_odds), np.asarray(state.grid.observed))
+
+
+def write_robot(folder: Path, grid: GridSpec, t: np.ndarray, state, out, final: np.ndarray) -> None:
+    """One robot's files into `folder` (which exists)."""
+    write_tum(folder / "trajectory.tum", tum_of(t, np.asarray(out.pose)), header="online SLAM pose at each scan")
+    write_tum(folder / "trajectory_final.tum", tum_of(t, final), header="SLAM pose at each scan, last optimization")
+    save_map(folder / "map.yaml", to_occupancy_map(grid, _grid(state)))
+    write_g2o(folder / "graph.g2o", graph_of(state))

@@ -1,0 +1,120 @@
+"""Online SLAM over recorded inputs, for one robot or a fleet: the library calls behind `jaxquad slam`.
+
+Inputs are a dict of arrays at the scans (leading robot axis N), as `jaxquad.estimate.laser.laser_inputs`
+gives for a robot log and `laser_log_inputs` for a 2D laser log: t (S,) s, odom (N, S, 3), ranges
+(N, S, B) m, bearings (B,) rad, T_base_laser (3,), valid (N, S), lo_twist (N, S, 3), lo_twist_cov
+(N, S, 3, 3), lo_valid (N, S), and optionally gt (N, S, 3). The scans run through `online.step` in
+chunks of one jitted `lax.scan`, `vmap`ped over the robots.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxquad.io.carmen import LaserLog
+from jaxquad.kernels.occupancy import GridSpec
+from jaxquad.slam import online
+from jaxquad.slam.mapping import grid_spec
+
+# Scans per jitted call: long enough to amortize dispatch, short enough for a live progress bar.
+CHUNK = 64
+
+
+def laser_log_inputs(log: LaserLog) -> dict:
+    """The SLAM inputs of a 2D laser log (one robot, no leg odometry): the odometry pose of each scan
+    is the one recorded with it, else the odometry interpolated at the scan's stamp."""
+    if log.scan_odom_xytheta is not None:
+        odom = log.scan_odom_xytheta
+    else:
+        yaw = np.unwrap(log.odom_xytheta[:, 2])
+        odom = np.stack([np.interp(log.scan_t, log.odom_t, c) for c in (*log.odom_xytheta[:, :2].T, yaw)], -1)
+    S = log.n_scans
+    x = {
+        "t": log.scan_t, "odom": odom[None], "ranges": log.ranges[None], "bearings": log.bearings,
+        "T_base_laser": log.T_base_laser_xytheta, "valid": np.ones((1, S), bool), "lo_twist": np.zeros((1, S, 3)),
+        "lo_twist_cov": np.zeros((1, S, 3, 3)), "lo_valid": np.zeros((1, S), bool),
+    }  # fmt: skip
+    if log.gt_xytheta is not None:
+        x["gt"] = log.gt_xytheta[None]
+    return x
+
+
+def map_grid(x: dict, resolution: float, max_range: float, margin: float = 2.0) -> GridSpec:
+    """A grid covering every robot's odometry plus the laser range and `margin` m on each side
+    (the map's extent is fixed before the run; drift beyond it loses only the map's edge)."""
+    xy = x["odom"][..., :2].reshape(-1, 2)
+    xy = xy[np.all(np.isfinite(xy), axis=1)]
+    if xy.size == 0:
+        raise ValueError("the input has no finite odometry pose")
+    lo, hi = xy.min(0) - max_range - margin, xy.max(0) + max_range + margin
+    return grid_spec((lo[0], lo[1], hi[0], hi[1]), resolution, max_range)
+
+
+def _inputs(x: dict, start: int, stop: int, size: int) -> online.SlamInputs:
+    """Scans start..stop of every robot, padded to `size` with scans that add nothing (NaN stamps)."""
+    pad = size - (stop - start)
+
+    def take(a, fill, robot_axis=True):
+        a = a[:, start:stop] if robot_axis else a[start:stop]
+        width = [(0, 0)] * a.ndim
+        width[1 if robot_axis else 0] = (0, pad)
+        return np.pad(a, width, constant_values=fill)
+
+    n = x["odom"].shape[0]
+    t = np.broadcast_to(take(x["t"], np.nan, False), (n, size))
+    valid = take(x["valid"], False)
+    r = take(x["ranges"], np.nan)
+    ok = valid[..., None] & ~np.isnan(r)
+    f = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+    return online.SlamInputs(
+        t=f(t), odom=f(take(x["odom"], np.nan)), ranges=f(np.where(ok, r, np.nan)), valid=jnp.asarray(ok),
+        lo_pose=f(take(x["odom"] if "lo_pose" not in x else x["lo_pose"], np.nan)),
+        lo_twist=f(take(x["lo_twist"], 0.0)), lo_twist_cov=f(take(x["lo_twist_cov"], 0.0)),
+        lo_valid=jnp.asarray(take(x["lo_valid"], False) & valid),
+    )  # fmt: skip
+
+
+@functools.cache
+def _compiled(spec: online.SlamSpec):
+    """The jitted fleet functions of one spec (cached: a spec compiles once per process)."""
+
+    def one(params, state, inputs):
+        return jax.lax.scan(lambda s, i: online.step(spec, params, s, i), state, inputs)
+
+    def init(params, bearings, n: int):
+        return jax.vmap(lambda _: online.init(spec, params, bearings))(jnp.arange(n))
+
+    chunk = jax.jit(jax.vmap(one, in_axes=(None, 0, 0)))
+    finish = jax.jit(jax.vmap(lambda params, s: online.finish(spec, params, s), in_axes=(None, 0)))
+    return jax.jit(init, static_argnums=2), chunk, finish
+
+
+def run_fleet(spec: online.SlamSpec, params: online.SlamParams, x: dict, progress=None):
+    """Online SLAM of every robot over all scans, then `finish`. Returns (final states, per-scan
+    outputs (N, S, ...), the states before `finish`) as NumPy pytrees. progress(done, total) per chunk."""
+    n, S = x["odom"].shape[:2]
+    init, chunk, finish = _compiled(spec)
+    states = init(params, jnp.asarray(x["bearings"], jnp.float32), n)
+    outs = []
+    for start in range(0, S, CHUNK):
+        stop = min(start + CHUNK, S)
+        states, out = chunk(params, states, _inputs(x, start, stop, CHUNK))
+        outs.append(jax.tree.map(lambda a: np.asarray(a)[:, : stop - start], out))
+        if progress is not None:
+            progress(stop, S)
+    online_states = jax.tree.map(np.asarray, states)
+    final = finish(params, states)
+    out = jax.tree.map(lambda *a: np.concatenate(a, 1), *outs)
+    return jax.tree.map(np.asarray, final), out, online_states
+
+
+_scan_poses = jax.jit(jax.vmap(online.scan_poses))
+
+
+def final_poses(state, out) -> np.ndarray:
+    """Every scan's pose at the final node poses (N, S, 3); NaN before a robot's first node."""
+    return np.asarray(_scan_poses(jax.tree.map(jnp.asarray, state), jax.tree.map(jnp.asarray, out)))

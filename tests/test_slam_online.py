@@ -1,0 +1,225 @@
+"""Online SLAM (`jaxquad.slam.online`) on scans cast by the independent NumPy caster: a drifting loop
+closed and corrected, a corrupted scan overruled by leg odometry, fleets equal to single robots, and
+`jaxquad slam` end to end on generated CARMEN and laser-npz logs."""
+
+from __future__ import annotations
+
+import functools
+import json
+
+import jax
+import numpy as np
+import pytest
+from _laser2d import box, cast
+
+from jaxquad.cli import main
+from jaxquad.io import read_tum
+from jaxquad.io.carmen import LaserLog, save_laser_npz
+from jaxquad.kernels.scan_grid import MatchSpec, cells_for_range
+from jaxquad.slam import SlamParams, SlamSpec, final_poses, grid_spec, load_params, run_fleet
+
+# A 2 m wide corridor around a block, with features on its walls so that places differ.
+WORLD = np.concatenate(
+    [box(-5, -4, 5, 4), box(-3, -2, 3, 2), box(-1.0, -4.0, -0.6, -3.6), box(1.5, -2.3, 2.3, -2.0),
+     box(4.6, 0.5, 5.0, 1.3), box(-5.0, -1.0, -4.7, -0.2), box(0.0, 3.7, 0.8, 4.0)]
+)  # fmt: skip
+BEARINGS = np.linspace(-np.pi, np.pi, 120, endpoint=False)
+DT = 0.1  # s between scans
+GRID = grid_spec((-6.0, -5.0, 6.0, 5.0), 0.05, 6.0)
+MATCH = MatchSpec(cells=cells_for_range(4.0, 0.01, 50))
+
+
+def _spec(lo: str) -> SlamSpec:
+    return SlamSpec(grid=GRID, nodes=96, buffer=20, match=MATCH, lo_constraints=lo)
+
+
+def _path(corners, spacing):
+    out = []
+    for a, b in zip(corners[:-1], corners[1:]):
+        d = np.subtract(b, a)
+        length = np.linalg.norm(d)
+        for s in np.arange(0.0, length, spacing):
+            out.append([*(a + d * s / length), np.arctan2(d[1], d[0])])
+    return np.array(out)
+
+
+def _relative(a, b):
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    d = b[..., :2] - a[..., :2]
+    yaw = (b[..., 2] - a[..., 2] + np.pi) % (2 * np.pi) - np.pi
+    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1], yaw], -1)
+
+
+def _integrate(start, steps):
+    out = [np.asarray(start, float)]
+    for dx, dy, dth in steps:
+        x, y, th = out[-1]
+        out.append(np.array([x + np.cos(th) * dx - np.sin(th) * dy, y + np.sin(th) * dx + np.cos(th) * dy, th + dth]))
+    return np.array(out)
+
+
+def _drifted(truth, scale, yaw_rate_bias):
+    """Odometry integrated from the true steps with a scale error and a heading-rate bias (rad/s)."""
+    steps = _relative(truth[:-1], truth[1:]) * np.array([1 + scale, 1 + scale, 1.0]) + [0, 0, yaw_rate_bias * DT]
+    return _integrate(truth[0], steps)
+
+
+def _inputs(truth, odom, lo, ranges):
+    S = len(truth)
+    step = _relative(lo[:-1], lo[1:]) / DT
+    twist = np.vstack([step, step[-1:]])
+    return {
+        "t": np.arange(S) * DT, "odom": odom[None], "lo_pose": lo[None], "ranges": ranges[None],
+        "bearings": BEARINGS, "T_base_laser": np.zeros(3), "valid": np.ones((1, S), bool),
+        "lo_twist": twist[None], "lo_twist_cov": np.broadcast_to(np.diag([0.01, 0.01, 4e-4]), (1, S, 3, 3)),
+        "lo_valid": np.ones((1, S), bool), "gt": truth[None],
+    }  # fmt: skip
+
+
+LOOP = _path([(0.0, -3.0), (4.0, -3.0), (4.0, 3.0), (-4.0, 3.0), (-4.0, -3.0), (2.0, -3.0)], 0.1)
+LOOP_RANGES = np.stack([cast(WORLD, p, BEARINGS, 6.0) for p in LOOP])
+
+
+def _ate(est, truth):
+    ok = np.all(np.isfinite(est), axis=1)
+    return float(np.sqrt(np.mean(np.sum((est[ok, :2] - truth[ok, :2]) ** 2, 1))))
+
+
+@functools.cache
+def _loop_run(lo: str):
+    odom = _drifted(LOOP, 0.05, 0.04)
+    lo_pose = _drifted(LOOP, 0.01, 0.005)
+    x = _inputs(LOOP, odom, lo_pose, LOOP_RANGES)
+    state, out, online_state = run_fleet(_spec(lo), SlamParams(), x)
+    return x, state, out, online_state, final_poses(state, out)[0]
+
+
+def test_loop_closed_and_drift_removed():
+    x, state, out, online_state, final = _loop_run("preintegrated")
+    odom_ate = _ate(x["odom"][0], LOOP)
+    assert odom_ate > 1.0  # the odometry alone is far off after the loop
+    assert int(state.loops[0]) >= 1 and out.loop_closed[0].any()
+    assert _ate(final, LOOP) < 0.05 < 0.1 * odom_ate
+    # Node spacing follows the thresholds: one node per 0.5 s slot while moving.
+    n = int(state.n_nodes[0])
+    assert abs(n - len(LOOP) * DT / 0.5) <= 2 and not bool(state.full[0])
+    added = np.flatnonzero(out.added[0])
+    assert np.all(np.diff(added) >= 5)
+    # Between nodes (before any closure moves them) a scan hangs from the last node by the odometry.
+    odom = x["odom"][0]
+    for s in range(added[0], 100):
+        a = added[added <= s][-1]
+        pose = _integrate(out.pose[0, a], [_relative(odom[a], odom[s])])[-1]
+        np.testing.assert_allclose(out.pose[0, s, :2], pose[:2], atol=1e-4)
+    # The final poses: node scans at their optimized nodes.
+    np.testing.assert_allclose(final[added], state.graph.poses[0, :n], atol=1e-5)
+    # The map holds the walls where the truth has them: occupied cells lie on segments.
+    from jaxquad.slam import to_occupancy_map
+
+    occ = to_occupancy_map(GRID, jax.tree.map(lambda a: a[0], state.grid))
+    rows, cols = np.nonzero(occ.grid > 65)
+    xy = np.c_[cols + 0.5, rows + 0.5] * GRID.resolution + [GRID.origin_x, GRID.origin_y]
+    a, b = WORLD[:, None, :2], WORLD[:, None, 2:]
+    u = np.clip(np.sum((xy - a) * (b - a), -1) / np.sum((b - a) ** 2, -1), 0, 1)
+    dist = np.linalg.norm(xy - (a + u[..., None] * (b - a)), axis=-1).min(0)
+    assert len(xy) > 300 and np.mean(dist < 0.1) > 0.95
+
+
+def test_leg_constraints_pull_back_a_corrupted_match():
+    """One scan cast 0.35 m to the side of where the robot is (as a shaking robot's scan can be): with
+    no leg constraint the node goes where that scan matched; with either kind it stays near the truth."""
+    truth = LOOP[:60]
+    ranges = np.stack([cast(WORLD, p, BEARINGS, 6.0) for p in truth])
+    k = 35  # a node scan (every 5th scan from the first)
+    ranges[k] = cast(WORLD, truth[k] + [0.0, 0.35, 0.0], BEARINGS, 6.0)
+    x = _inputs(truth, truth.copy(), truth.copy(), ranges)
+    errors = {}
+    for lo in ("off", "preintegrated"):
+        state, out, _ = run_fleet(_spec(lo), SlamParams(), x)
+        assert out.added[0, k]
+        errors[lo] = float(np.linalg.norm(out.pose[0, k, :2] - truth[k, :2]))
+    assert errors["off"] > 0.25 and errors["preintegrated"] < 0.05, errors
+
+
+def test_fleet_equals_single_robots():
+    """Two robots batched (one on a shorter, different path) give each robot's single run."""
+    x, state, out, _, _ = _loop_run("preintegrated")
+    other = LOOP[200:].copy()
+    x2 = _inputs(other, _drifted(other, -0.03, -0.02), other, LOOP_RANGES[200:])
+    pad = len(LOOP) - len(other)
+    both = {}
+    for key, v in x.items():
+        if key in ("t", "bearings", "T_base_laser"):
+            both[key] = v
+            continue
+        w = x2[key]
+        w = np.concatenate([w, np.repeat(w[:, -1:], pad, 1)], 1) if w.ndim > 1 else w
+        if key == "valid":
+            w[:, len(other):] = False  # the second robot's log ends early
+        both[key] = np.concatenate([v, w])
+    state2, out2, _ = run_fleet(_spec("preintegrated"), SlamParams(), both)
+    single2, outs2, _ = run_fleet(_spec("preintegrated"), SlamParams(), {k: v for k, v in x2.items()})
+    np.testing.assert_allclose(out2.pose[0], out.pose[0], atol=1e-4)  # solver sums in another order
+    assert int(state2.n_nodes[1]) == int(single2.n_nodes[0])
+    np.testing.assert_allclose(out2.pose[1, : len(other)], outs2.pose[0], atol=1e-4)
+
+
+def _small_params(tmp_path):
+    p = tmp_path / "slam.yaml"
+    p.write_text("node_capacity: 96\nscan_buffer_size: 20\nmatch_max_range: 4.0\nmax_laser_range: 6.0\n")
+    return p
+
+
+def test_cli_on_a_laser_npz_with_truth_and_a_carmen_log(tmp_path, capsys):
+    odom = _drifted(LOOP, 0.05, 0.04)
+    log = LaserLog(scan_t=np.arange(len(LOOP)) * DT + 100.0, ranges=LOOP_RANGES, bearings=BEARINGS,
+                   odom_t=np.arange(len(LOOP)) * DT + 100.0, odom_xytheta=odom, gt_xytheta=LOOP)  # fmt: skip
+    save_laser_npz(tmp_path / "loop.npz", log)
+    params = _small_params(tmp_path)
+    assert main(["slam", str(tmp_path / "loop.npz"), "--out", str(tmp_path / "a"), "--params", str(params)]) == 0
+    summary = json.loads((tmp_path / "a" / "summary.json").read_text())
+    r = summary["robots"][0]
+    assert summary["format"] == "laser-npz" and summary["lo_constraints"] == "off" and r["loop_closures"] >= 1
+    assert r["scores"]["final"]["ate"]["rmse"] < 0.1 * r["scores"]["odometry"]["ate"]["rmse"]
+    final = read_tum(tmp_path / "a" / "trajectory_final.tum")
+    np.testing.assert_allclose(final.t_s, log.scan_t)  # every scan, stamped with its own time
+    for f in ("trajectory.tum", "map.pgm", "map.yaml", "graph.g2o"):
+        assert (tmp_path / "a" / f).stat().st_size > 0
+    capsys.readouterr()
+
+    # The same scans as a CARMEN log (FLASER lines, stamps in ipc_timestamp), with a comment.
+    lines = ["# generated loop"]
+    for t, r, o in zip(log.scan_t, LOOP_RANGES, odom):
+        rr = " ".join(f"{v:.4f}" if np.isfinite(v) else "81.91" for v in r)
+        lines.append(f"FLASER {len(r)} {rr} {o[0]} {o[1]} {o[2]} {o[0]} {o[1]} {o[2]} {t:.3f} host {t:.3f}")
+    (tmp_path / "loop.clf").write_text("\n".join(lines) + "\n")
+    argv = ["slam", str(tmp_path / "loop.clf"), "--out", str(tmp_path / "b"), "--params", str(params),
+            "--flaser-fov-deg", "357"]  # fmt: skip
+    assert main(argv) == 0
+    assert json.loads((tmp_path / "b" / "summary.json").read_text())["format"] == "carmen"
+    np.testing.assert_allclose(read_tum(tmp_path / "b" / "trajectory_final.tum").t_s, log.scan_t, atol=1e-6)
+    capsys.readouterr()
+
+    # One-line errors before any work: a malformed line, a bad parameter, an output in the way.
+    (tmp_path / "bad.clf").write_text(lines[1] + "\nFLASER 3 1.0 oops\n")
+    assert main(["slam", str(tmp_path / "bad.clf"), "--out", str(tmp_path / "c")]) == 1
+    assert "bad.clf:2" in capsys.readouterr().err and not (tmp_path / "c").exists()
+    (tmp_path / "neg.yaml").write_text("resolution: -1\n")
+    argv = ["slam", str(tmp_path / "loop.npz"), "--out", str(tmp_path / "c"), "--params", str(tmp_path / "neg.yaml")]
+    assert main(argv) == 1
+    assert "resolution" in capsys.readouterr().err
+    (tmp_path / "file").write_text("x")
+    assert main(["slam", str(tmp_path / "loop.npz"), "--out", str(tmp_path / "file")]) == 1
+
+
+def test_params_file_checks(tmp_path):
+    values = load_params()
+    assert values["minimum_travel_distance"] == 0.1 and values["loop_match_minimum_chain_size"] == 7
+    p = tmp_path / "p.yaml"
+    for text, words in [("nope: 1\n", "unknown key"), ("node_capacity: 2.5\n", "integer"),
+                        ("loop_ambiguity_ratio: 2\n", "out of range"), ("resolution: .nan\n", "finite")]:  # fmt: skip
+        p.write_text(text)
+        with pytest.raises(ValueError, match=words):
+            load_params(p)
+    with pytest.raises(ValueError, match="lo_constraints"):
+        SlamSpec(grid=GRID, lo_constraints="odometry")
