@@ -83,7 +83,8 @@ def laser_inputs(
     )
     T_base_camera = np.asarray(log["T_base_camera"])
     valid = np.asarray(log["valid"])[:, k] if "valid" in log else np.ones((n, k.size), bool)
-    lo_valid = valid & ~np.asarray(est.flags.fallen)[:, k] & ~np.asarray(est.flags.no_stance)[:, k]
+    # A sample without stance holds the last twist and keeps integrating: only a fall ends the odometry.
+    lo_valid = valid & ~np.asarray(est.flags.fallen)[:, k]
     out = {
         "t": depth_t, "odom": pose2d(est.p_world_base[:, k], est.q_world_base[:, k]), "ranges": np.stack(ranges),
         "bearings": bearings,

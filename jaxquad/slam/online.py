@@ -28,6 +28,10 @@ Leg-odometry constraints (`SlamSpec.lo_constraints`), one more edge from the las
                  propagated from the twist covariance at each scan: Sigma <- Ad(D^-1) Sigma Ad(D^-1)^T +
                  Q dt correlation, D the scan-to-scan change, Q the (vx, vy, omega) covariance, the twist
                  error taken as white noise with `lo_correlation_s` of correlation time.
+Match covariances (the response spread, Karto's way) are multiplied by `match_cov_scale`: on simulated
+depth-camera scans (noise 1 % of z^2) the match-only chain erred 12.5 cm / 1.6 deg rms per node where the
+spread claimed 3 cm / 1 deg. The scale weighs matches against leg odometry only: without leg-odometry
+edges every edge scales alike and the optimum is unchanged.
 With a constraint the new node's pose is the optimum of the match edge (Cauchy-robust, width
 `solver.robust_width` in chi-square units) and the leg-odometry edge, the last node held: a scan
 that matches far from where the legs say the robot went is overruled instead of yanking the path.
@@ -93,6 +97,7 @@ class SlamParams(eqx.Module):
     min_interval: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.5))  # s
     buffer_distance: Float[Array, ""] = eqx.field(default_factory=lambda: _f(20.0))  # m
     link_min_response: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.1))
+    match_cov_scale: Float[Array, ""] = eqx.field(default_factory=lambda: _f(10.0))  # multiplies match covariances
     odom_fallback_std: Float[Array, "3"] = eqx.field(default_factory=lambda: _f([0.05, 0.05, 0.05]))  # m, m, rad
     velocity_cov: Float[Array, "3"] = eqx.field(default_factory=lambda: _f([0.1, 0.1, 0.05]))  # (m/s)^2, (rad/s)^2
     velocity_max_dt: Float[Array, ""] = eqx.field(default_factory=lambda: _f(5.0))  # s
@@ -230,7 +235,7 @@ def _match_buffer(spec: SlamSpec, params: SlamParams, state: SlamState, pred: Fl
     grid = likelihood_grid(spec.match, params.match, prior[:2], pts, mask)
     res = match_scan(spec.match, params.match, grid, prior, inp.ranges, state.bearings, inp.valid)
     good = jnp.any(mask) & (res.response >= params.link_min_response) & jnp.all(jnp.isfinite(res.pose))
-    cov = _to_base_cov(params, _rotate_cov(res.pose[2], res.covariance))
+    cov = _to_base_cov(params, _rotate_cov(res.pose[2], res.covariance)) * params.match_cov_scale
     return _base(params, res.pose), cov, res.response, good
 
 
@@ -309,7 +314,8 @@ def _close_loop(spec: SlamSpec, params: SlamParams, state: SlamState, j, respons
     L = se2(params.T_base_laser)
     z = xy_theta(L @ se2(cand.T_i_j) @ L.inverse())
     state = _add_edge(
-        state, cand.i, j, z, _information(_to_base_cov(params, cand.covariance)), ROBUST_NONE, EDGE_LOOP, cand.accept
+        state, cand.i, j, z, _information(_to_base_cov(params, cand.covariance) * params.match_cov_scale), ROBUST_NONE,
+        EDGE_LOOP, cand.accept,
     )
     # Robots without a closure run no solver iteration (the loop's trip count is 0), also under vmap.
     trips = jnp.where(cand.accept, params.solver.max_iterations, 0)

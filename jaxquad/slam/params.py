@@ -105,7 +105,7 @@ def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=
         T_base_laser=f(T_base_laser), min_travel=f(v["minimum_travel_distance"]),
         min_rotation=f(v["minimum_travel_heading"]), min_interval=f(v["minimum_time_interval"]),
         buffer_distance=f(v["scan_buffer_maximum_scan_distance"]),
-        link_min_response=f(v["link_match_minimum_response_fine"]),
+        link_min_response=f(v["link_match_minimum_response_fine"]), match_cov_scale=f(v["match_covariance_scale"]),
         odom_fallback_std=f([v["odom_fallback_std_xy"], v["odom_fallback_std_xy"], v["odom_fallback_std_yaw"]]),
         velocity_cov=f([v["leg_velocity_var_xy"], v["leg_velocity_var_xy"], v["leg_velocity_var_yaw"]]),
         velocity_max_dt=f(v["leg_velocity_max_dt"]), lo_correlation_s=f(v["leg_correlation_time"]),

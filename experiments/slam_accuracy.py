@@ -1,0 +1,140 @@
+"""Online SLAM on simulated fleets: accuracy per leg-odometry constraint kind, and speed.
+
+    python experiments/slam_accuracy.py [--robot go2 --robot badger] [--world house --world warehouse]
+        [--robots 2] [--seconds 10] [--style aggressive] [--contacts truth] [--scan-hz 10]
+        [--lo-constraints off velocity preintegrated] [--throughput 1 4096] [--json rows.json]
+
+For each robot and world it simulates a fleet (`jaxquad.sim.rollout`, depth on, `--robots` robots in
+up to 4 distinct worlds), runs the estimator once (leg-inertial odometry with `--contacts`, the
+stabilized scans at `--scan-hz`), then the online SLAM (`jaxquad.slam`, the default parameters of
+slam.yaml) once per constraint kind on the same scans. Printed as Markdown, means +- std over the
+fleet's robots: ATE (m, SE(3)-aligned, evo's definition) of the odometry alone, of the online SLAM
+pose at each scan and of the final (after the last optimization) trajectory; occupied-cell IoU,
+precision and recall of the final map against the true map (`jaxquad.metrics.map_scores`: recall
+counts every visible wall of the world, also those never in view); loop closures per robot; the
+SLAM's wall time. With --throughput B...: the real-time factor (scan time span / wall time, compile
+apart) of B robots' online SLAM in one jitted vmapped run (the fleet's robots repeated).
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import sys
+import time
+
+import jax
+import numpy as np
+
+
+def _subsample(x: dict, every: int) -> dict:
+    out = {}
+    for k, v in x.items():
+        if k in ("bearings", "T_base_laser"):
+            out[k] = v
+        elif k == "t":
+            out[k] = v[::every]
+        else:
+            out[k] = v[:, ::every]
+    return out
+
+
+def _stats(vals) -> str:
+    vals = np.asarray([v for v in vals if v is not None and np.isfinite(v)], float)
+    return f"{vals.mean():.3f} +- {vals.std():.3f}" if vals.size else "-"
+
+
+def _cell(args, robot: str, world: str, rows: list, json_rows: list) -> dict:
+    from jaxquad.estimate.laser import laser_inputs
+    from jaxquad.sim.fleet import FleetConfig
+    from jaxquad.sim.rollout import rollout
+    from jaxquad.slam import final_poses, load_params, map_grid, run_fleet, slam_config
+    from jaxquad.slam.report import robot_report, robot_slice
+
+    config = FleetConfig(robot=robot, world=world, n_robots=args.robots, n_worlds=min(4, args.robots),
+                         style=args.style, seed=args.seed, depth=True)  # fmt: skip
+    log = rollout(config, args.seconds, progress=True)
+    maps = log.maps()
+    values = load_params()
+    x = laser_inputs(log, "stabilized", args.contacts, 5, 0.2, values["max_laser_range"], None,
+                     values["leg_yaw_rate_std"])  # fmt: skip
+    every = max(1, round(config.camera_hz / args.scan_hz))
+    x = _subsample(x, every)
+    t = np.asarray(x["t"], np.float64)
+    grid = map_grid(x, values["resolution"], values["max_laser_range"])
+    world_index = np.asarray(log["world_index"])
+    for lo in args.lo_constraints:
+        spec, params = slam_config(values, grid, lo, x["T_base_laser"])
+        t0 = time.perf_counter()
+        state, out, _ = run_fleet(spec, params, x)
+        wall = time.perf_counter() - t0
+        final = final_poses(state, out)
+        reps = [robot_report(spec, t, robot_slice(state, i), robot_slice(out, i), final[i], x, i,
+                             maps[world_index[i] % len(maps)]) for i in range(args.robots)]  # fmt: skip
+        ate = lambda which: [r["scores"][which].get("ate", {}).get("rmse") for r in reps]  # noqa: E731
+        ms = lambda key: [r["map_scores"][key] for r in reps]  # noqa: E731
+        rows.append(f"| {robot} | {world} | {lo} | {_stats(ate('odometry'))} | {_stats(ate('online'))} | "
+                    f"{_stats(ate('final'))} | {_stats(ms('iou'))} | {_stats(ms('precision'))} | "
+                    f"{_stats(ms('recall'))} | {np.mean([r['loop_closures'] for r in reps]):.1f} | {wall:.1f} |")  # fmt: skip
+        json_rows.append({"robot": robot, "world": world, "lo_constraints": lo, "wall_s": wall, "robots": reps})
+        print(rows[-1], file=sys.stderr)
+    return {"x": x, "grid": grid, "values": values}
+
+
+def _throughput(cell: dict, batches, rows: list) -> None:
+    from jaxquad.slam import run_fleet, slam_config
+
+    x, values = cell["x"], cell["values"]
+    spec, params = slam_config(values, cell["grid"], "preintegrated", x["T_base_laser"])
+    span = float(x["t"][-1] - x["t"][0])
+    for b in batches:
+        reps = -(-b // x["odom"].shape[0])
+        xb = {k: (v if k in ("t", "bearings", "T_base_laser") else np.concatenate([v] * reps)[:b]) for k, v in x.items()}
+        t0 = time.perf_counter()
+        run_fleet(spec, params, xb)  # compiles
+        first = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        run_fleet(spec, params, xb)
+        wall = time.perf_counter() - t0
+        rows.append(f"| {b} | {len(x['t'])} | {span:.1f} | {first - wall:.1f} | {wall:.2f} | {span / wall:.1f} |")
+        print(rows[-1], file=sys.stderr)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--robot", action="append", choices=("go2", "badger"), help="robots (default: go2)")
+    p.add_argument("--world", action="append", choices=("house", "warehouse"), help="worlds (default: house)")
+    p.add_argument("--robots", type=int, default=2, help="robots per fleet (default 2)")
+    p.add_argument("--seconds", type=float, default=10.0, help="simulated time per fleet, s (default 10)")
+    p.add_argument("--style", choices=("calm", "aggressive"), default="aggressive", help="gait style (default aggressive)")
+    p.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
+    p.add_argument("--contacts", choices=("truth", "mixed", "observer"), default="truth",
+                   help="contact source of the leg odometry (default truth)")  # fmt: skip
+    p.add_argument("--scan-hz", type=float, default=10.0, help="scans per second fed to the SLAM (default 10)")
+    p.add_argument("--lo-constraints", nargs="+", default=["off", "velocity", "preintegrated"],
+                   choices=("off", "velocity", "preintegrated"), help="constraint kinds (default: all three)")  # fmt: skip
+    p.add_argument("--throughput", type=int, nargs="*", default=[], help="robot counts for the speed table")
+    p.add_argument("--json", default=None, help="also write every robot's report to this JSON file")
+    args = p.parse_args()
+    args.robot, args.world = args.robot or ["go2"], args.world or ["house"]
+    print(f"command: {' '.join(sys.argv)}")
+    print(f"machine: {platform.node()}, {jax.devices()[0].device_kind} ({jax.default_backend()})")
+    rows = ["| robot | world | LO constraints | ATE odometry m | ATE online m | ATE final m | map IoU | precision | "
+            "recall | loops/robot | SLAM wall s |", "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+    json_rows, cell = [], None
+    for robot in args.robot:
+        for world in args.world:
+            cell = _cell(args, robot, world, rows, json_rows)
+    print("\n".join(rows))
+    if args.throughput:
+        speed = ["| robots | scans | scan span s | compile s | run s | real-time factor |", "|---:|---:|---:|---:|---:|---:|"]
+        _throughput(cell, args.throughput, speed)
+        print("\n" + "\n".join(speed))
+    if args.json:
+        from jaxquad.io import write_json
+
+        write_json(args.json, json_rows)
+
+
+if __name__ == "__main__":
+    main()
