@@ -17,7 +17,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="fleet sizes for --sim (default: 1 64 on CPU, 1024 4096 16384 on GPU)",
     )  # fmt: skip
     parser.add_argument("--sim-robot", default="go2", help="robot for --sim (default go2)")
-    parser.add_argument("--sim-world", default="house", choices=["house", "warehouse"])
+    parser.add_argument("--sim-world", default="house", choices=["house", "warehouse"],
+                        help="generated world for --sim (default house)")  # fmt: skip
     parser.add_argument("--sim-chunk-frames", type=int, default=None,
                         help="camera frames per chunk for --sim (default: the most that fit in free memory, <= 30)")  # fmt: skip
     parser.add_argument("--sim-repeats", type=int, default=3, help="steady chunks timed per row (default 3)")

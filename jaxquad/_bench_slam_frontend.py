@@ -21,7 +21,8 @@ _SENSOR_Z = 0.3  # m
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--frontend-repeats", type=int, default=20, help="steady calls timed per row (median)")
+    parser.add_argument("--frontend-repeats", type=int, default=20,
+                        help="steady calls timed per row (median; default 20)")  # fmt: skip
     parser.add_argument(
         "--frontend-candidates", type=int, default=4,
         help="coarse blocks expanded per round of the exact search (default: 4; under vmap every item runs "

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import sys
+from collections.abc import Callable, Iterator
 
 # subcommand -> module defining `add_arguments(parser)` and `run(args) -> int`.
 _COMMANDS: dict[str, tuple[str, str]] = {
@@ -21,6 +23,28 @@ _COMMANDS: dict[str, tuple[str, str]] = {
     "vo": ("jaxquad.vo.cli", "depth-inertial visual odometry guided and restarted by leg odometry (TUM, JSON summary)"),
     "simulate": ("jaxquad.sim.cli", "run an MJX fleet of robots in generated worlds; write the fleet log, ground-truth TUM and maps"),
 }
+
+
+@contextlib.contextmanager
+def progress_bar(desc: str, unit: str) -> Iterator[Callable[[int, int], None]]:
+    """A `progress(done, total)` callback drawing a tqdm bar on stderr from its first call on. Runs
+    report `progress(0, total)` once their inputs are checked, so an input error prints alone."""
+    bar = None
+
+    def progress(done: int, total: int) -> None:
+        nonlocal bar
+        if bar is None:
+            from tqdm import tqdm
+
+            bar = tqdm(total=total, desc=desc, unit=unit)
+        bar.total = total
+        bar.update(done - bar.n)
+
+    try:
+        yield progress
+    finally:
+        if bar is not None:
+            bar.close()
 
 
 class _Parser(argparse.ArgumentParser):

@@ -9,11 +9,12 @@ write everything.
 
 Output folder (built in a temporary sibling folder and renamed into place when complete, so a
 stopped run never leaves a half-written report):
-  summary.json                       configuration, machine, wall times, mean scores per contact
-                                     source and for the scans, list of files
+  summary.json                       configuration (the fleet's, every pipeline parameter and
+                                     choice per contact source), machine, wall times, mean scores
+                                     per contact source and for the scans, list of files
   sim/                               the fleet log, ground-truth TUM per robot, the world map(s)
   estimate_<source>/                 per robot TUM + npz (+ scans), summary.json with per-robot scores
-                                     and the observer parameters used
+                                     and the parameters used
   trajectories.png                   xy paths per robot against ground truth, over the map
   heights.png                        one robot's base height over time, truth and estimates
   contacts.png                       one robot, a few seconds, every foot: stance and forces
@@ -28,6 +29,7 @@ scored by the share of rays ending near an occupied cell.
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -111,11 +113,16 @@ def run_demo(
             "machine": machine(),
             "config": {"robots": robots, "seconds": seconds, "robot": robot, "world": world, "style": style,
                        "seed": seed, "resolution": list(resolution), "band_height_px": BAND_HEIGHT,
-                       "scan_range_m": [RANGE_MIN, RANGE_MAX], "map_hit_tolerance_m": HIT_TOLERANCE},  # fmt: skip
+                       "scan_range_m": [RANGE_MIN, RANGE_MAX], "map_hit_tolerance_m": HIT_TOLERANCE,
+                       "contact_window_s": contact_window_s},
+            "fleet_config": dataclasses.asdict(config),
             "fallen": [bool(v) for v in np.asarray(log["fallen"])],
             "wall_s": wall,
             "sources": {s: mean_scores(runs[s].summary["robots"]) for s in sources},
             "source_params": {s: runs[s].summary.get("observer_params", "ground-truth contacts") for s in sources},
+            # Every number of each source's pipeline (PipelineParams) and its static choices (PipelineConfig).
+            "params": {s: runs[s].summary["params"] for s in sources},
+            "pipeline_config": {s: runs[s].summary["config"] for s in sources},
             "scans": scan_scores,
             "files": sorted(str(p.relative_to(tmp)) for p in tmp.rglob("*") if p.is_file()) + ["summary.json"],
         }

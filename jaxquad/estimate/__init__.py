@@ -3,7 +3,7 @@
 from jaxquad.estimate.attitude import AttitudeParams, AttitudeState, attitude_from_acc, estimate_attitude
 from jaxquad.estimate.differentiate import DifferentiatorParams, DifferentiatorState, joint_velocities
 from jaxquad.estimate.odometry import Pose, integrate_twist, odometry_step, se3_exp
-from jaxquad.estimate.inputs import CONTACT_SOURCES, RobotInputs, full_state, robot_inputs
+from jaxquad.estimate.inputs import CONTACT_SOURCES, RobotInputs, check_log, full_state, robot_inputs
 from jaxquad.estimate.pipeline import Estimate, Flags, PipelineConfig, PipelineParams, estimate_fleet, estimate_robot, inputs_from_log
 from jaxquad.estimate.run import estimate_log, load_params, run_estimate
 from jaxquad.estimate.scores import (
@@ -16,7 +16,7 @@ from jaxquad.estimate.tune import (
 
 __all__ = [
     "CONTACT_SOURCES", "AttitudeParams", "AttitudeState", "DifferentiatorParams", "DifferentiatorState",
-    "Estimate", "Flags", "PipelineConfig", "PipelineParams", "Pose", "RobotInputs", "attitude_from_acc",
+    "Estimate", "Flags", "PipelineConfig", "PipelineParams", "Pose", "RobotInputs", "attitude_from_acc", "check_log",
     "contact_scores", "detection_delays", "estimate_attitude", "estimate_fleet",
     "estimate_log", "estimate_robot", "force_rmse", "inputs_from_log", "integrate_twist", "load_params",
     "joint_velocities", "odometry_drift", "odometry_step", "run_estimate", "se3_exp", "full_state", "robot_inputs",

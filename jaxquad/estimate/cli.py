@@ -36,8 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
+    from jaxquad.cli import progress_bar
     from jaxquad.estimate import scores
     from jaxquad.estimate.run import SUMMARY_KIND, run_estimate
     from jaxquad.io import check_output_dir, load_log, read_observer_params
@@ -47,23 +46,16 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--band-height must be >= 1 px, got {args.band_height}")
     if not (0 <= args.range_min < args.range_max):
         raise ValueError(f"need 0 <= --range-min < --range-max, got {args.range_min} and {args.range_max}")
-    # Everything the user gave is checked before the (long) estimation starts.
+    # Everything the user gave is checked before the (long) estimation starts; the log against the
+    # robot and the contact source in run_estimate, before its first progress report.
     check_output_dir(args.out, kind=SUMMARY_KIND)
     log = load_log(args.log)
     if args.params is not None:
         read_observer_params(args.params)
-    bar = tqdm(total=None, desc="estimate", unit="robot")
-
-    def progress(done: int, total: int) -> None:
-        bar.total = total
-        bar.update(done - bar.n)
-
-    try:
+    odometry = dict(rolling=args.feet == "rolling", robust=args.robust, floor=not args.no_floor)
+    with progress_bar("estimate", "robot") as progress:
         summary = run_estimate(log, args.out, args.contacts, args.params, progress, args.band_height,
-                               args.range_min, args.range_max,
-                               odometry=dict(rolling=args.feet == "rolling", robust=args.robust, floor=not args.no_floor))  # fmt: skip
-    finally:
-        bar.close()
+                               args.range_min, args.range_max, odometry=odometry)  # fmt: skip
     robots = summary["robots"]
     brief = {"robots": len(robots), "fallen": sum(r["fallen"] for r in robots), "out": str(args.out)}
     per_robot = [r["scores"] for r in robots]

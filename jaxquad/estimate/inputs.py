@@ -60,21 +60,29 @@ def _joint_order(robot, log: Mapping) -> np.ndarray:
     return np.array([names.index(j) for j in robot.joint_names])
 
 
+def check_log(robot, log: Mapping, contacts: str = "truth") -> None:
+    """Raise `robot_inputs`' one-line errors (an unknown contact source, joints of the robot missing
+    from the log, keys the source needs) without building its arrays: a check before heavy work."""
+    if contacts not in CONTACT_SOURCES:
+        raise ValueError(f"contacts must be one of {', '.join(CONTACT_SOURCES)}, got {contacts!r}")
+    _joint_order(robot, log)
+    if contacts == "truth" and "gt_contact" not in log:
+        raise ValueError("contacts='truth' needs 'gt_contact' in the log")
+    if contacts == "sensor" and "contact" not in log and "foot_force" not in log:
+        raise ValueError("contacts='sensor' needs 'contact' or 'foot_force' in the log")
+    if contacts in ("observer", "mixed") and "tau" not in log:
+        raise ValueError(f"contacts={contacts!r} needs joint torques ('tau') in the log")
+
+
 def _contact_weight(log: Mapping, lead, contacts: str, shape: tuple[int, int, int]) -> np.ndarray:
     if contacts == "truth":
-        if "gt_contact" not in log:
-            raise ValueError("contacts='truth' needs 'gt_contact' in the log")
         return lead(log["gt_contact"]).astype(float)
     if contacts == "sensor":
         if "contact" in log:
             return lead(log["contact"]).astype(float)
-        if "foot_force" in log:
-            f = lead(log["foot_force"]).astype(float)
-            lo, hi = np.nanpercentile(f, 5, axis=1), np.nanpercentile(f, 95, axis=1)
-            return np.where(np.isfinite(f), (f > 0.5 * (lo + hi)[:, None]).astype(float), np.nan)
-        raise ValueError("contacts='sensor' needs 'contact' or 'foot_force' in the log")
-    if "tau" not in log:
-        raise ValueError(f"contacts={contacts!r} needs joint torques ('tau') in the log")
+        f = lead(log["foot_force"]).astype(float)
+        lo, hi = np.nanpercentile(f, 5, axis=1), np.nanpercentile(f, 95, axis=1)
+        return np.where(np.isfinite(f), (f > 0.5 * (lo + hi)[:, None]).astype(float), np.nan)
     return np.zeros(shape)
 
 
@@ -85,8 +93,7 @@ def robot_inputs(robot, log: Mapping, contacts: str = "truth") -> RobotInputs:
     midpoint of its per-foot 5th and 95th percentiles), "observer" (plain) or "mixed" (need tau).
     The initial position and heading come from gt_pose when the log has it, else the origin.
     """
-    if contacts not in CONTACT_SOURCES:
-        raise ValueError(f"contacts must be one of {', '.join(CONTACT_SOURCES)}, got {contacts!r}")
+    check_log(robot, log, contacts)
     fleet = "fallen" in log
     lead = (lambda a: np.asarray(a)) if fleet else (lambda a: np.asarray(a)[None])
     t = np.asarray(log["t"], np.float64)

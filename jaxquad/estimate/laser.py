@@ -45,11 +45,14 @@ def laser_inputs(
     range_max: float = 8.0,
     observer_params=None,
     yaw_rate_std: float = 0.02,
+    progress=None,
 ) -> dict:
     """Per robot (leading axis N) at the F depth frames: t (F,) s, odom (N, F, 3) leg-inertial odometry
     x y yaw, ranges (N, F, W) m of the `scans` kind, bearings (W,) rad, T_base_laser (3,), valid (N, F),
     lo_twist (N, F, 3) planar leg-odometry twist, lo_twist_cov (N, F, 3, 3), lo_valid (N, F) and, with
-    ground truth, gt (N, F, 3). `observer_params`: a contact-observer file (as `jaxquad estimate --params`)."""
+    ground truth, gt (N, F, 3). `observer_params`: a contact-observer file (as `jaxquad estimate --params`).
+    The log is checked first (depth, joints, what the contact source needs); then `progress(0, F)` says so."""
+    from jaxquad.estimate.inputs import check_log
     from jaxquad.estimate.run import estimate_log
     from jaxquad.estimate.run import load_params as load_observer_params
     from jaxquad.robots import load
@@ -59,7 +62,10 @@ def laser_inputs(
     if "depth" not in log:
         raise ValueError("the log has no depth images: 2D scans are sliced from them")
     robot = load(str(np.asarray(log["robot"])))
+    check_log(robot, log, contacts)
     obs = load_observer_params(observer_params, len(robot.foot_names), contacts)
+    if progress is not None:
+        progress(0, len(log["depth_t"]))
     _, _, est = estimate_log(log, contacts, obs, robot)
     fleet = "fallen" in log
     t, depth_t = np.asarray(log["t"], np.float64), np.asarray(log["depth_t"], np.float64)

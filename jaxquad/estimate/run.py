@@ -13,7 +13,8 @@ the output folder. The folder, per robot i (`robot_000`, ... for a fleet, `robot
                     flag_fallen)
   <name>_scans.npz  when the log has depth: depth_t, ranges_stabilized and ranges_baseline (F, W) m
                     (+inf = no reading), bearings (W,) rad, roll and pitch (F,) rad used per frame
-  summary.json      configuration, the observer parameters used, per-robot flag counts and, where
+  summary.json      configuration, every parameter used (`params`: all of PipelineParams; the
+                    observer's also as a --params file holds them), per-robot flag counts and, where
                     the log has ground truth, scores (contact F1 and delays, force RMSE, drift,
                     ATE/RPE)
 The folder is built beside `out_dir` and renamed into place when complete.
@@ -120,14 +121,17 @@ def estimate_and_score(
 
     params: PipelineParams (the paper's defaults if None); band_height (px) and range_min/range_max
     (m) configure the scans; source: where the log came from, for the summary; odometry as `estimate_log`."""
+    from jaxquad.estimate.inputs import check_log
+    from jaxquad.io.jsonfile import json_ready
     from jaxquad.io.params import observer_params_dict
+    from jaxquad.robots import load
 
-    robot = None
+    robot = load(str(np.asarray(log["robot"])))
+    check_log(robot, log, contacts)
     if params is None:
-        from jaxquad.robots import load
-
-        robot = load(str(np.asarray(log["robot"])))
         params = load_params(None, len(robot.foot_names), contacts)
+    if progress is not None:
+        progress(0, np.asarray(log["fallen"]).shape[0] if "fallen" in log else 1)  # inputs checked
     robot, config, out = estimate_log(log, contacts, params, robot, odometry)
     t = np.asarray(log["t"], np.float64)
     fleet = "fallen" in log
@@ -135,9 +139,9 @@ def estimate_and_score(
     summary = {"kind": SUMMARY_KIND, "log": source, "robot": robot.name, "contacts": contacts,
                "config": dataclasses.asdict(config), "samples": int(t.size), "duration_s": float(t[-1] - t[0]),
                "scans": {"band_height_px": band_height, "range_min_m": range_min, "range_max_m": range_max},
-               "robots": []}  # fmt: skip
+               "params": json_ready(params), "robots": []}  # fmt: skip
     if contacts in ("observer", "mixed"):
-        summary["observer_params"] = observer_params_dict(params.observer)
+        summary["observer_params"] = observer_params_dict(params.observer)  # as a --params file holds them
     names, scans = [], [] if "depth" in log else None
     for i in range(n):
         names.append(f"robot_{i:03d}" if fleet else "robot")

@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxquad.io.atomic import atomic_open
+from jaxquad.io.files import read_npz
 from jaxquad.kernels.lie import SE2
 
 _TAG = re.compile(r"[A-Z][A-Z0-9_]*$")
@@ -200,13 +201,11 @@ def read_carmen(path: str | os.PathLike, flaser_fov_deg: float = 180.0) -> Laser
 def read_laser_npz(path: str | os.PathLike) -> LaserLog:
     """A `.npz` laser log (keys in the module docstring); unknown keys are ignored."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
-    with np.load(path, allow_pickle=False) as z:
-        missing = [k for k in _REQUIRED if k not in z]
-        if missing:
-            raise ValueError(f"{path}: missing key '{missing[0]}'")
-        fields = {k: z[k] for k in _REQUIRED + _OPTIONAL if k in z}
+    z = read_npz(path, "laser log")
+    missing = [k for k in _REQUIRED if k not in z]
+    if missing:
+        raise ValueError(f"{path}: missing key '{missing[0]}'")
+    fields = {k: z[k] for k in _REQUIRED + _OPTIONAL if k in z}
     try:
         return LaserLog(**fields)
     except ValueError as e:

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxquad.io.atomic import atomic_write_text
+from jaxquad.io.files import read_text
 
 _UPPER = np.triu_indices(3)
 
@@ -66,11 +67,10 @@ def _vertex_id(path, lineno, tag, text):
 def read_g2o(path: str | os.PathLike) -> G2oGraph:
     """Read VERTEX_SE2, EDGE_SE2 and FIX lines; raise a one-line ValueError on any malformed line."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"g2o file not found: {path}")
+    text = read_text(path, "g2o")
     ids, poses, fixed, edges, meas, info = [], [], [], [], [], []
     seen: set[int] = set()
-    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+    for lineno, line in enumerate(text.splitlines(), 1):
         fields = line.split()
         if not fields or fields[0].startswith("#"):
             continue

@@ -31,13 +31,13 @@ Other keys are kept as they are and not checked.
 from __future__ import annotations
 
 import os
-import zipfile
 from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
 from jaxquad.io.atomic import atomic_open
+from jaxquad.io.files import read_npz
 
 REQUIRED = ("t", "robot", "joint_names", "q", "gyro", "acc")
 SHARED = frozenset({"t", "robot", "joint_names", "depth_t", "K", "T_base_camera"})
@@ -163,19 +163,7 @@ def is_fleet(log: Mapping[str, np.ndarray]) -> bool:
 def load_log(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """Read and validate a single or fleet log; a bad log raises a one-line ValueError."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"log file not found: {path}")
-    with open(path, "rb") as f:
-        head = f.read(4)
-    if not head:
-        raise ValueError(f"log {path}: the file is empty")
-    if head != b"PK\x03\x04":  # every .npz is a zip archive
-        raise ValueError(f"log {path}: not an .npz archive (a robot log is written by numpy.savez)")
-    try:
-        with np.load(path, allow_pickle=False) as f:
-            log = {k: f[k] for k in f.files}
-    except (OSError, EOFError, zipfile.BadZipFile, ValueError) as e:
-        raise ValueError(f"log {path}: not a readable .npz ({type(e).__name__}: {e})") from None
+    log = read_npz(path, "log")
     validate_log(log, str(path))
     return log
 

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxquad.io.atomic import atomic_write_bytes
+from jaxquad.io.files import read_text
 
 FREE_PIXEL, OCCUPIED_PIXEL, UNKNOWN_PIXEL = 254, 0, 205
 OCCUPIED_THRESH, FREE_THRESH = 0.65, 0.196
@@ -103,9 +104,12 @@ def load_map(yaml_path: str | os.PathLike) -> OccupancyMap:
     import yaml
 
     yaml_path = Path(yaml_path)
-    if not yaml_path.is_file():
-        raise FileNotFoundError(f"map file not found: {yaml_path}")
-    meta = yaml.safe_load(yaml_path.read_text())
+    try:
+        meta = yaml.safe_load(read_text(yaml_path, "map"))
+    except yaml.YAMLError as e:
+        raise ValueError(f"map {yaml_path}: not valid YAML ({str(e).splitlines()[0]})") from None
+    if meta is not None and not isinstance(meta, dict):
+        raise ValueError(f"map {yaml_path}: expected a mapping with image, resolution and origin")
     missing = {"image", "resolution", "origin"} - set(meta or {})
     if missing:
         raise ValueError(f"{yaml_path}: missing map keys {sorted(missing)}")

@@ -29,8 +29,10 @@ _RANGES = {
 
 def observer_params_dict(params) -> dict:
     """The keys a params file holds (floats; per-foot lists) of an ObserverParams."""
-    scalar = lambda x: float(np.asarray(x))  # noqa: E731
-    vector = lambda x: [float(v) for v in np.asarray(x)]  # noqa: E731
+    from jaxquad.io.jsonfile import json_ready
+
+    scalar = lambda x: json_ready(np.asarray(x).reshape(()))  # noqa: E731
+    vector = lambda x: json_ready(np.asarray(x).reshape(-1))  # noqa: E731
     return {
         "mode": params.mode, "bandwidth": scalar(params.bandwidth), "alpha": vector(params.alpha),
         "threshold_on": vector(params.threshold_on), "threshold_off": vector(params.threshold_off),

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxquad.io.atomic import atomic_write_text
+from jaxquad.io.files import read_text
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,10 +111,7 @@ def _parse_checked(lines: list[str], path: Path) -> np.ndarray:
 def read_tum(path: str | os.PathLike) -> TumTrajectory:
     """Read a TUM trajectory file; ValueError (file:line: what) on malformed content."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"trajectory file not found: {path}")
-    with open(path, encoding="utf-8-sig") as f:
-        lines = f.read().splitlines()
+    lines = read_text(path, "trajectory").splitlines()
     mat = _parse_fast(lines)
     if mat is None:
         mat = _parse_checked(lines, path)

@@ -12,7 +12,8 @@ import argparse
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", help="robot log (.npz, single robot or fleet) with depth images")
     parser.add_argument("--map", required=True, help="occupancy map YAML (PGM + YAML, map_server format, yaw 0)")
-    parser.add_argument("--out", required=True, help="output folder (replaced whole when the run succeeds)")
+    parser.add_argument("--out", required=True,
+                        help="output folder (created; replaced only if it holds an earlier localization)")  # fmt: skip
     start = parser.add_mutually_exclusive_group(required=True)
     start.add_argument(
         "--initial-pose",
@@ -58,10 +59,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from jaxquad.cli import progress_bar
     from jaxquad.io.jsonfile import to_json
-
-    from tqdm import tqdm
-
     from jaxquad.localize.run import run_localize
 
     if args.particles is not None and args.particles < 1:
@@ -69,17 +68,10 @@ def run(args: argparse.Namespace) -> int:
     if args.band_height < 1:
         raise ValueError(f"--band-height must be >= 1, got {args.band_height}")
     initial = "global" if args.global_ else "gt" if args.initial_pose_gt else tuple(args.initial_pose)
-    bar = tqdm(total=None, desc="localize", unit="scan")
-
-    def progress(done: int, total: int) -> None:
-        bar.total = total
-        bar.update(done - bar.n)
-
-    try:
+    # run_localize checks the output folder, parameters, map and log before its first progress report.
+    with progress_bar("localize", "scan") as progress:
         summary = run_localize(args.log, args.map, args.out, initial, args.params, args.particles, args.contacts,
                                args.band_height, progress, args.observer_params)  # fmt: skip
-    finally:
-        bar.close()
     print(to_json({"params_file": summary["params_file"], "params": summary["params"]}))
     brief = {"robots": len(summary["robots"]), "out": str(args.out)}
     errs = [r["scores"] for r in summary["robots"] if "scores" in r]

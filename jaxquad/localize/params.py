@@ -57,8 +57,11 @@ class LocalizeParams:
 def _read(path: Path) -> dict:
     import yaml
 
+    from jaxquad.io.files import read_text
+
+    text = read_text(path, "params")
     try:
-        raw = yaml.safe_load(path.read_text())
+        raw = yaml.safe_load(text)
     except yaml.YAMLError as e:
         line = getattr(getattr(e, "problem_mark", None), "line", None)
         raise ValueError(f"params file {path}: not valid YAML" + (f" (line {line + 1})" if line is not None else ""))

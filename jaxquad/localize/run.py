@@ -29,6 +29,7 @@ from jaxquad.localize.params import DEFAULTS_FILE, LocalizeParams, load_params
 
 # Scans per jitted call: long enough to amortize dispatch, short enough for a live progress bar.
 _CHUNK = 128
+SUMMARY_KIND = "jaxquad localize"
 # Global localization has converged from the first frame after which the error stays below this (m).
 CONVERGED_M = 0.5
 
@@ -112,12 +113,12 @@ def _scores(t: np.ndarray, pose: np.ndarray, gt: np.ndarray, valid: np.ndarray, 
 
 
 def log_inputs(
-    log: dict, lp: LocalizeParams, contacts: str = "mixed", band_height: int = 5, observer_params=None
+    log: dict, lp: LocalizeParams, contacts: str = "mixed", band_height: int = 5, observer_params=None, progress=None
 ) -> dict:
     """What the filter reads from a loaded log (`jaxquad.estimate.laser.laser_inputs` with the
-    stabilized scans cut to the filter's laser range limits)."""
+    stabilized scans cut to the filter's laser range limits); `progress(0, F)` once the log is checked."""
     return laser_inputs(log, "stabilized", contacts, band_height, lp.laser_min_range, lp.laser_max_range,
-                        observer_params)  # fmt: skip
+                        observer_params, progress=progress)  # fmt: skip
 
 
 def localize_log(
@@ -129,7 +130,7 @@ def localize_log(
     if initial == "gt" and "gt_pose" not in log:
         raise ValueError("--initial-pose-gt needs a log with gt_pose")
     field = field_of_map(occ, lp.laser_likelihood_max_dist)
-    x = log_inputs(log, lp, contacts, band_height, observer_params)
+    x = log_inputs(log, lp, contacts, band_height, observer_params, progress)
     n = x["odom"].shape[0]
     gt = x.get("gt")
     if initial == "global":
@@ -165,17 +166,18 @@ def run_localize(
 ) -> dict:  # fmt: skip
     """Localize the robots of the log at `log_path` on the map at `map_path`; write `out_dir`."""
     from jaxquad.io import TumTrajectory, load_log, load_map, write_json, write_tum
-    from jaxquad.io.atomic import atomic_dir, check_output_dir
+    from jaxquad.io.atomic import atomic_dir, atomic_open, check_output_dir
 
-    check_output_dir(out_dir)
+    check_output_dir(out_dir, kind=SUMMARY_KIND)
     lp = load_params(params_path, max_particles=particles)
     occ = load_map(map_path)
     log = load_log(log_path)
     robots = localize_log(log, occ, lp, initial, contacts, band_height, progress, observer_params)
     summary = {
-        "log": str(log_path), "map": str(map_path), "params_file": str(params_path or DEFAULTS_FILE),
-        "params": dataclasses.asdict(lp), "initial": initial if isinstance(initial, str) else list(initial),
-        "contacts": contacts, "observer_params": None if observer_params is None else str(observer_params),
+        "kind": SUMMARY_KIND, "log": str(log_path), "map": str(map_path),
+        "params_file": str(params_path or DEFAULTS_FILE), "params": dataclasses.asdict(lp),
+        "initial": initial if isinstance(initial, str) else list(initial), "contacts": contacts,
+        "observer_params": None if observer_params is None else str(observer_params), "band_height_px": band_height,
         "robots": [],
     }  # fmt: skip
     with atomic_dir(out_dir) as tmp:
@@ -184,7 +186,8 @@ def run_localize(
             q = np.stack([np.zeros(len(pose)), np.zeros(len(pose)), np.sin(pose[:, 2] / 2), np.cos(pose[:, 2] / 2)], 1)
             p = np.concatenate([pose[:, :2], np.zeros((len(pose), 1))], 1)
             write_tum(tmp / f"{r['name']}.tum", TumTrajectory(r["t"], p, q))
-            np.savez(tmp / f"{r['name']}.npz", **{k: v for k, v in r.items() if k not in ("name", "scores")})
+            with atomic_open(tmp / f"{r['name']}.npz") as f:
+                np.savez(f, **{k: v for k, v in r.items() if k not in ("name", "scores")})
             std = np.sqrt(np.clip(np.diagonal(r["cov"][-1]), 0, None))
             summary["robots"].append({
                 "name": r["name"], "scans": int(len(pose)), "updates": int(r["updated"].sum()),
@@ -195,4 +198,6 @@ def run_localize(
     return summary
 
 
-__all__ = ["CONVERGED_M", "field_of_map", "localize_log", "log_inputs", "localize_scans", "run_localize"]
+__all__ = [
+    "CONVERGED_M", "SUMMARY_KIND", "field_of_map", "localize_log", "log_inputs", "localize_scans", "run_localize",
+]  # fmt: skip

@@ -19,7 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="RPE deltas (default: 2 5 10), in travelled metres unless --delta-unit frames",
     )
     parser.add_argument("--delta-unit", default="m", choices=("m", "frames"), help="unit of --delta (default: m)")
-    parser.add_argument("--all-pairs", action="store_true", help="RPE over all pairs instead of consecutive ones")
+    parser.add_argument("--all-pairs", action="store_true",
+                        help="RPE over all pairs instead of consecutive ones (default: consecutive)")  # fmt: skip
     parser.add_argument(
         "--max-diff", type=float, default=0.01, metavar="S",
         help="max. time difference in seconds when associating stamps (default: 0.01)",
@@ -42,7 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "drift_pct and drift_deg_per_m (mean, per_length, lengths_m, n_segments, n_segments_per_length, "
         "step_poses), n_pairs, alignment, ok",
     )
-    parser.add_argument("--plot", metavar="OUT.png", help="write the xy trajectories and the error over time")
+    parser.add_argument(
+        "--plot", metavar="OUT.png", help="write a PNG of the xy trajectories and the error over time (default: none)"
+    )
 
 
 def _table(d: dict) -> str:
@@ -65,10 +68,13 @@ def _table(d: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from jaxquad.io.atomic import check_output_file
     from jaxquad.io.jsonfile import to_json
     from jaxquad.io.tum import read_tum
     from jaxquad.metrics._evaluate import evaluate
 
+    if args.plot:
+        check_output_file(args.plot, "--plot")
     ev = evaluate(
         read_tum(args.ref), read_tum(args.est), align=args.align, deltas=args.delta,
         delta_unit=args.delta_unit, all_pairs=args.all_pairs, max_diff_s=args.max_diff,

@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import numpy as np
 
+from jaxquad.io.atomic import atomic_open
 from jaxquad.metrics._evaluate import Evaluation
 
 
 def plot_evaluation(ev: Evaluation, out_path: str | os.PathLike) -> None:
-    """Write a PNG: left, the reference and the aligned estimate in the xy plane, the estimate
+    """Write a PNG (atomically): left, the reference and the aligned estimate in the xy plane, the estimate
     coloured by its APE translation error; right, that error (m) over time since the first pose."""
     import matplotlib
 
@@ -36,5 +38,9 @@ def plot_evaluation(ev: Evaluation, out_path: str | os.PathLike) -> None:
     ax_t.axhline(float(ate.rmse), color="C3", ls="--", label=f"ATE (RMSE) {float(ate.rmse):.4g} m")
     ax_t.set(xlabel="time (s)", ylabel="APE translation (m)", title="translation error over time")
     ax_t.legend(loc="best")
-    fig.savefig(out_path, dpi=120)
-    plt.close(fig)
+    Path(out_path).parent.mkdir(parents=True, exist_ok=True)
+    try:
+        with atomic_open(out_path, "wb") as f:
+            fig.savefig(f, format="png", dpi=120)
+    finally:
+        plt.close(fig)

@@ -32,6 +32,9 @@ from scipy.spatial.transform import Rotation
 from jaxquad.ros.messages import FORMATS, bag_writer, seconds_to_ns
 
 
+_SCAN_KEYS = ("depth_t", "ranges_stabilized", "ranges_baseline", "bearings", "roll", "pitch")
+
+
 def _topic_name(stem: str) -> str:
     name = re.sub(r"[^A-Za-z0-9_]", "_", stem)
     return name if name[:1].isalpha() else f"t_{name}"
@@ -41,7 +44,7 @@ def find_results(folder: str | os.PathLike) -> dict:
     """{'trajectories': {name: (TumTrajectory, npz or None)}, 'scans': {name: npz}, 'maps': {stem: OccupancyMap}}."""
     import yaml
 
-    from jaxquad.io import load_map, read_tum
+    from jaxquad.io import load_map, read_npz, read_tum
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -49,14 +52,18 @@ def find_results(folder: str | os.PathLike) -> dict:
     found: dict = {"trajectories": {}, "scans": {}, "maps": {}}
     for tum in sorted(folder.glob("*.tum")):
         npz = tum.with_suffix(".npz")
-        extra = dict(np.load(npz)) if npz.is_file() else None
+        extra = read_npz(npz, "twists") if npz.is_file() else None
         found["trajectories"][_topic_name(tum.stem)] = (read_tum(tum), extra)
     for scans in sorted(folder.glob("*_scans.npz")):
-        found["scans"][_topic_name(scans.name[: -len("_scans.npz")])] = dict(np.load(scans))
+        arrays = read_npz(scans, "scans")
+        missing = [k for k in _SCAN_KEYS if k not in arrays]
+        if missing:
+            raise ValueError(f"scans {scans}: missing key(s) {missing} (as `jaxquad estimate` writes them)")
+        found["scans"][_topic_name(scans.name[: -len("_scans.npz")])] = arrays
     for path in sorted(folder.glob("*.yaml")):
         try:
             meta = yaml.safe_load(path.read_text())
-        except yaml.YAMLError:
+        except (yaml.YAMLError, UnicodeDecodeError):
             continue  # not a map (maps are read strictly below)
         if isinstance(meta, dict) and {"image", "resolution", "origin"} <= set(meta):
             found["maps"][_topic_name(path.stem)] = load_map(path)
@@ -155,6 +162,9 @@ def export(folder: str | os.PathLike, out: str | os.PathLike, fmt: str = "mcap",
     if (fmt == "ros1") != (Path(out).suffix == ".bag"):
         raise ValueError(f"--bag {out}: a ROS 1 bag is a .bag file; a ROS 2 bag is a folder (no .bag suffix)")
     (check_output_file if fmt == "ros1" else check_output_dir)(out, "--bag")
+    bag = Path(out)
+    if fmt != "ros1" and bag.is_dir() and any(bag.iterdir()) and not (bag / "metadata.yaml").is_file():
+        raise ValueError(f"--bag {out} is a non-empty folder that holds no earlier ROS 2 bag; choose another")
     found = find_results(folder)
     counts: dict[str, int] = {}
     with atomic_path(out) as tmp, bag_writer(tmp, fmt) as w:

@@ -88,11 +88,12 @@ def load_topics(path: str | os.PathLike) -> Topics:
     """Read and check a topics file; a problem raises a one-line ValueError naming the key."""
     import yaml
 
+    from jaxquad.io.files import read_text
+
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"topics file not found: {path}")
+    text = read_text(path, "topics")
     try:
-        raw = yaml.safe_load(path.read_text())
+        raw = yaml.safe_load(text)
     except yaml.YAMLError as e:
         raise ValueError(f"topics file {path}: not valid YAML ({str(e).splitlines()[0]})") from None
     if not isinstance(raw, dict):

@@ -35,26 +35,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from jaxquad.io import check_output_dir, load_log
+    from jaxquad.cli import progress_bar
     from jaxquad.io.jsonfile import to_json
-    from jaxquad.vo.fleet import SUMMARY_KIND, run_vo
+    from jaxquad.vo.fleet import run_vo
 
-    check_output_dir(args.out, kind=SUMMARY_KIND)
-    log = load_log(args.log)
-    if "depth" not in log:
-        raise ValueError(f"{args.log}: log has no 'depth' images")
-    bar = tqdm(total=None, desc="vo", unit="robot")
-
-    def progress(done: int, total: int) -> None:
-        bar.total = total
-        bar.update(done - bar.n)
-
-    try:
-        summary = run_vo(log, args.out, args.leg_odometry, args.contacts, progress)
-    finally:
-        bar.close()
+    # run_vo checks the output folder and the log before its first progress report.
+    with progress_bar("vo", "robot") as progress:
+        summary = run_vo(args.log, args.out, args.leg_odometry, args.contacts, progress)
     robots = summary["robots"]
     brief = {"robots": len(robots), "coupling": args.leg_odometry, "out": str(args.out),
              "tracking_losses": sum(r["tracking_losses"] for r in robots)}  # fmt: skip

@@ -175,7 +175,7 @@ def run_vo(
     """Leg odometry by the estimator, then visual odometry; write `<robot>.tum` per robot and
     `summary.json` into `out_dir` (checked first, replaced whole when complete); return the summary."""
     from jaxquad.estimate import estimate_log
-    from jaxquad.estimate.inputs import R_base_imu
+    from jaxquad.estimate.inputs import R_base_imu, check_log
     from jaxquad.io import (
         TumTrajectory,
         atomic_dir,
@@ -184,12 +184,19 @@ def run_vo(
         write_tum,
     )
     from jaxquad.io.jsonfile import write_json
+    from jaxquad.robots import load
 
     check_output_dir(out_dir, kind=SUMMARY_KIND)
     source = None
     if not isinstance(log, Mapping):
         source, log = str(log), load_log(log)
-    robot, _, est = estimate_log(log, contacts)
+    if "depth" not in log:
+        raise ValueError(f"{source or 'log'}: log has no 'depth' images")
+    robot = load(str(np.asarray(log["robot"])))
+    check_log(robot, log, contacts)
+    if progress is not None:
+        progress(0, np.asarray(log["fallen"]).shape[0] if "fallen" in log else 1)  # inputs checked
+    robot, _, est = estimate_log(log, contacts, robot=robot)
     result = visual_odometry(
         log,
         est.p_world_base,

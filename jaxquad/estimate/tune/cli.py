@@ -24,10 +24,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     src = parser.add_mutually_exclusive_group(required=True)
     src.add_argument("--log", help="fleet or single-robot log (.npz) with tau, qd, gt_pose, gt_contact, gt_force")
     src.add_argument("--simulate", action="store_true", help="simulate a fleet first (options below)")
-    parser.add_argument("--method", choices=("grid", "gradient"), required=True)
+    parser.add_argument("--method", choices=("grid", "gradient"), required=True,
+                        help="grid search over five axes, or gradient descent on a smooth surrogate loss")  # fmt: skip
     parser.add_argument("--out", required=True, help="params file to write (.yaml, .yml or .json)")
     parser.add_argument("--mode", choices=("mixed", "plain"), default="mixed", help="observer mode (default mixed)")
-    parser.add_argument("--holdout", type=float, default=0.25, help="fraction of robots held out for scoring (default 0.25)")
+    parser.add_argument("--holdout", type=float, default=0.25,
+                        help="fraction of robots held out for scoring (default 0.25; a single-robot log is tuned and "
+                        "scored on itself)")  # fmt: skip
     grid = parser.add_argument_group("grid search")
     grid.add_argument("--grid-size", type=_grid_size, default=4,
                       help="points per axis (bandwidth, alpha front, alpha rear, threshold on, off/on ratio): N or N,N,N,N,N (default 4)")  # fmt: skip
@@ -35,17 +38,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     grad = parser.add_argument_group("gradient tuning")
     grad.add_argument("--steps", type=int, default=200, help="maximum optimizer steps (default 200)")
     grad.add_argument("--lr", type=float, default=0.05, help="Adam learning rate (default 0.05)")
-    grad.add_argument("--patience", type=int, default=25, help="stop after this many steps without improvement")
+    grad.add_argument("--patience", type=int, default=25,
+                      help="stop after this many steps without improvement (default 25)")  # fmt: skip
     sim = parser.add_argument_group("with --simulate")
-    sim.add_argument("--robot", default="go2")
-    sim.add_argument("--world", default="house", choices=("house", "warehouse"))
-    sim.add_argument("--robots", type=int, default=8)
-    sim.add_argument("--seconds", type=float, default=10.0)
-    sim.add_argument("--style", default="aggressive", choices=("calm", "aggressive"))
-    sim.add_argument("--seed", type=int, default=0)
+    sim.add_argument("--robot", default="go2", help="go2, badger, or a path to an MJCF file (default go2)")
+    sim.add_argument("--world", default="house", choices=("house", "warehouse"), help="generated world (default house)")
+    sim.add_argument("--robots", type=int, default=8, help="fleet size (default 8)")
+    sim.add_argument("--seconds", type=float, default=10.0, help="simulated time per robot, s (default 10)")
+    sim.add_argument("--style", default="aggressive", choices=("calm", "aggressive"),
+                     help="gait style (default aggressive)")  # fmt: skip
+    sim.add_argument("--seed", type=int, default=0, help="random seed of worlds, routes and noise (default 0)")
 
 
 def run(args: argparse.Namespace) -> int:
+    import dataclasses
     import tempfile
     import time
     from pathlib import Path
@@ -53,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from jaxquad.estimate import tune as tn
+    from jaxquad.estimate.tune.run import call_options
     from jaxquad.io import check_output_file, load_log, to_json, write_json
     from jaxquad.robots import load
 
@@ -66,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     # The search is long: a place it cannot write must fail now, not after it.
     check_output_file(out, "--out")
     check_output_file(out.with_name(f"{out.stem}.summary.json"), "--out summary")
-    walls = {}
+    walls, simulated = {}, None
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         if args.simulate:
@@ -78,13 +85,15 @@ def run(args: argparse.Namespace) -> int:
             config = FleetConfig(robot=args.robot, world=args.world, n_robots=args.robots, style=args.style,
                                  seed=args.seed, depth=False)  # fmt: skip
             log_path = simulate(config, args.seconds, tmp)
+            simulated = {"config": dataclasses.asdict(config), "seconds": args.seconds}
             walls["simulate_s"] = time.perf_counter() - t0
         else:
             log_path = args.log
         log = load_log(log_path)
     robot = load(str(log["robot"]))
     t1 = time.perf_counter()
-    inputs, truth, t = tn.observer_inputs(robot, log)
+    input_options = call_options(tn.observer_inputs, {})
+    inputs, truth, t = tn.observer_inputs(robot, log, **input_options)
     walls["observer_inputs_s"] = time.perf_counter() - t1
 
     if args.method == "grid":
@@ -103,11 +112,13 @@ def run(args: argparse.Namespace) -> int:
     try:
         # A single-robot log has no robot to hold out: it is tuned and scored on itself (said in the summary).
         holdout = args.holdout if inputs.p.shape[0] > 1 else 0.0
-        best, summary = tn.tune_fleet(args.method, inputs, truth, t, args.mode, holdout, progress=progress, **kwargs)
+        best, tuned = tn.tune_fleet(args.method, inputs, truth, t, args.mode, holdout, progress=progress, **kwargs)
     finally:
         bar.close()
     walls["total_s"] = time.perf_counter() - t0
-    summary = {"log": None if args.simulate else str(args.log), "robot": robot.name} | summary | {"walls": walls}
+    summary = {"log": None if args.simulate else str(args.log), "simulated": simulated, "robot": robot.name,
+               "holdout_requested": args.holdout, "observer_inputs": input_options}
+    summary |= tuned | {"walls": walls}
     header = (f"jaxquad tune --method {args.method}: F1 {summary['paper_train']['f1']:.4f} (paper defaults) -> "
               f"{summary['tuned_train']['f1']:.4f} on {summary['robots_train']} training robot(s)")  # fmt: skip
     tn.save_params(out, best, header=header)

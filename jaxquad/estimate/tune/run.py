@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from typing import Literal
 
 import numpy as np
@@ -13,6 +14,13 @@ from jaxquad.estimate.tune.observer_inputs import ContactTruth, ObserverInputs, 
 from jaxquad.estimate.tune.observer_scan import fleet_scores
 from jaxquad.io.params import observer_params_dict
 from jaxquad.kernels import ObserverParams
+
+
+def call_options(fn, given: dict) -> dict:
+    """The keyword options of `fn` a call with `given` uses: `given` completed with `fn`'s defaults
+    (callbacks left out), for a summary that records every parameter."""
+    params = inspect.signature(fn).parameters
+    return {k: given.get(k, p.default) for k, p in params.items() if p.default is not p.empty and k != "progress"}
 
 
 def split_robots(n: int, holdout: float) -> tuple[np.ndarray, np.ndarray]:
@@ -37,19 +45,25 @@ def tune_fleet(
     train, held = split_robots(n, holdout)
     tr_in, tr_truth = select_robots(inputs, train), select_robots(truth, train)
     paper = ObserverParams.paper(inputs.n_feet, mode)
-    summary: dict = {"method": method, "mode": mode, "robots_train": int(train.size), "robots_heldout": int(held.size),
-                     "samples": int(t.size), "duration_s": float(t[-1] - t[0])}  # fmt: skip
+    summary: dict = {"method": method, "mode": mode, "holdout": holdout, "robots_train": int(train.size),
+                     "robots_heldout": int(held.size), "samples": int(t.size),
+                     "duration_s": float(t[-1] - t[0])}  # fmt: skip
     if method == "grid":
         spec = GridSpec.default() if spec is None else spec
         res = grid_search(spec, paper, tr_in, tr_truth, t, chunk, progress=progress, **options)
         best = res.best
         summary.update(configurations=spec.size, chunk=chunk, best_index=res.index, wall_s=res.wall_s,
-                       grid={f.name: list(getattr(spec, f.name)) for f in dataclasses.fields(spec)})  # fmt: skip
+                       grid={f.name: list(getattr(spec, f.name)) for f in dataclasses.fields(spec)},
+                       options=call_options(grid_search, {"chunk": chunk, **options}),
+                       base_params=observer_params_dict(paper))  # fmt: skip
     elif method == "gradient":
-        res = gradient_tune(paper if start is None else start, tr_in, tr_truth, steps, progress=progress, **options)
+        start = paper if start is None else start
+        res = gradient_tune(start, tr_in, tr_truth, steps, progress=progress, **options)
         best = res.best
         summary.update(steps=int(res.loss.size), best_step=res.best_step, stopped=res.stopped, wall_s=res.wall_s,
-                       loss=[float(x) for x in res.loss])  # fmt: skip
+                       loss=[float(x) for x in res.loss],
+                       options=call_options(gradient_tune, {"steps": steps, **options}),
+                       start_params=observer_params_dict(start))  # fmt: skip
     else:
         raise ValueError(f"method must be grid or gradient, got {method!r}")
     summary["params"] = observer_params_dict(best)
