@@ -63,7 +63,9 @@ def f(tmp_path_factory) -> dict[str, str]:
     (d / "bad.yaml").write_text("mode: mixed\nbandwidth: -5\n")
     (d / "badamcl.yaml").write_text("sigma_hit: -1\n")
     s = np.linspace(0, 12, 120)
-    traj = TumTrajectory(s, np.stack([3 * np.cos(s / 2), 2 * np.sin(s / 3), 0.1 * s], 1), np.tile([0, 0, 0, 1.0], (120, 1)))
+    traj = TumTrajectory(
+        s, np.stack([3 * np.cos(s / 2), 2 * np.sin(s / 3), 0.1 * s], 1), np.tile([0, 0, 0, 1.0], (120, 1))
+    )
     write_tum(d / "ref.tum", traj)
     save_map(d / "map.yaml", OccupancyMap(np.zeros((40, 40), np.int8), 0.1, (-2.0, -2.0, 0.0)))
     (d / "graph.g2o").write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
@@ -204,8 +206,14 @@ CASES = {
         ("localize {log_npz} --map {binary} --out {new} --global", ["binary", "UTF-8"]),
         ("localize {log_npz} --map {text_npz} --out {new} --global", ["text.npz"]),
         ("localize {log_npz} --map {missing} --out {new} --global", ["missing.npz"]),
-        ("localize {log_npz} --map {map_yaml} --out {new} --global --params {badamcl_yaml}", ["badamcl.yaml", "sigma_hit"]),
-        ("localize {log_npz} --map {map_yaml} --out {new} --global --observer-params {bad_yaml}", ["bad.yaml", "bandwidth"]),
+        (
+            "localize {log_npz} --map {map_yaml} --out {new} --global --params {badamcl_yaml}",
+            ["badamcl.yaml", "sigma_hit"],
+        ),
+        (
+            "localize {log_npz} --map {map_yaml} --out {new} --global --observer-params {bad_yaml}",
+            ["bad.yaml", "bandwidth"],
+        ),
         ("localize {log_npz} --map {map_yaml} --out {new} --global --particles 0", ["--particles"]),
         ("localize {log_npz} --map {map_yaml} --out {new}", ["--global"]),
     ],
@@ -281,6 +289,25 @@ def test_unknown_robot_as_a_user_runs_it(tmp_path):
     assert time.perf_counter() - t0 < FAST_S
 
 
+@pytest.mark.slow
+def test_tune_on_a_single_robot_log_with_the_default_holdout(f, tmp_path, capsys):
+    """No robot to hold out: tuned and scored on itself (not an error after the search), the best
+    parameters printed on stdout as written, and every parameter of the run recorded."""
+    import yaml
+
+    out = tmp_path / "p.yaml"
+    assert main(["tune", "--log", f["log_npz"], "--method", "grid", "--grid-size", "1", "--out", str(out)]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed == json.loads((tmp_path / "p.summary.json").read_text())
+    assert printed["holdout_requested"] == 0.25 and printed["holdout"] == 0.0
+    assert printed["robots_train"] == 1 and printed["robots_heldout"] == 0 and "tuned_heldout" not in printed
+    assert printed["params"] == yaml.safe_load(out.read_text())
+    assert printed["observer_inputs"] == {"max_gap_s": 0.05, "torque_saturation": 0.99, "chunk": 4096, "axes": "xyz",
+                                          "passive": True, "rows": "joints"}  # fmt: skip
+    assert set(printed["options"]) == {"chunk", "f1_tolerance", "top_k", "max_delay_s"}
+    assert printed["base_params"]["bandwidth"] == 30.0  # the paper's, around which the grid lies
+
+
 # ---------------------------------------------------------------- help texts
 
 
@@ -315,7 +342,9 @@ def test_every_option_has_help_with_its_default(command):
             continue
         assert "default" in action.help, f"jaxquad {command} {name}: help does not say its default: {action.help!r}"
         if action.default is not None:
-            assert _shown(action.default, action.help), f"jaxquad {command} {name}: default {action.default!r} not in help"
+            assert _shown(action.default, action.help), (
+                f"jaxquad {command} {name}: default {action.default!r} not in help"
+            )
 
 
 def test_help_prints_and_exits_0(capsys):
@@ -342,7 +371,9 @@ def test_outputs_have_uniform_modes(tmp_path):
         write_json(tmp_path / "s.json", {"a": 1})
         plot_heights(tmp_path / "h.png", np.arange(3.0), np.zeros(3), {"truth": np.ones(3)})
         s = np.arange(50.0)
-        write_tum(tmp_path / "a.tum", TumTrajectory(s, np.c_[np.cos(s), np.sin(s), 0.1 * s], np.tile([0, 0, 0, 1.0], (50, 1))))
+        write_tum(
+            tmp_path / "a.tum", TumTrajectory(s, np.c_[np.cos(s), np.sin(s), 0.1 * s], np.tile([0, 0, 0, 1.0], (50, 1)))
+        )
         traj = read_tum(tmp_path / "a.tum")
         plot_evaluation(evaluate(traj, traj, align="none", deltas=[1.0]), tmp_path / "e.png")
         with atomic_dir(tmp_path / "folder") as d:

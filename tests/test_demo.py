@@ -139,6 +139,13 @@ def test_demo_end_to_end(tmp_path):
     # The shipped tuned numbers are the default, the paper's beside them, and both are recorded.
     assert list(s["sources"]) == ["tuned", "paper", "truth"]
     assert s["source_params"]["tuned"]["bandwidth"] != s["source_params"]["paper"]["bandwidth"] == 30.0
+    # Every parameter of every source's pipeline, and the fleet's configuration, are recorded.
+    assert set(s["params"]) == set(s["pipeline_config"]) == set(s["sources"])
+    assert s["params"]["tuned"]["observer"]["bandwidth"] == s["source_params"]["tuned"]["bandwidth"]
+    assert s["params"]["paper"]["observer"]["bandwidth"] == 30.0 and "floor" in s["params"]["truth"]
+    assert s["pipeline_config"]["truth"]["contacts"] == "truth"
+    fleet = s["fleet_config"]
+    assert (fleet["robot"], fleet["n_robots"], fleet["style"], fleet["width"], fleet["height"]) == ("go2", 1, "aggressive", 32, 24)
     # Ground-truth contacts scored against ground truth: exact.
     assert s["sources"]["truth"]["contact F1"]["value"] == 1.0
     assert 0.0 <= s["sources"]["tuned"]["contact F1"]["value"] <= 1.0

@@ -182,6 +182,15 @@ def test_cli_end_to_end_on_a_written_log(robot, fixed_feet_log, tmp_path):
     args = ["--contacts", "truth", "--params", str(params), "--feet", "point"]  # pinned feet, as `run`
     assert main(["estimate", str(log_path), "--out", str(tmp_path / "out"), *args]) == 0
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    # Every parameter used is recorded: the file's observer numbers, every other number at its default.
+    recorded, default = summary["params"], pipeline.PipelineParams.default()
+    assert set(recorded) == {f.name for f in dataclasses.fields(default)}
+    assert recorded["observer"]["bandwidth"] == 40.0 and recorded["observer"]["alpha"] == [0.3, 0.3, 0.1, 0.1]
+    assert recorded["observer"]["threshold_on"] == np.asarray(default.observer.threshold_on, np.float32).tolist()
+    for name in ("imu_weight", "min_stance", "max_gap_s", "robust_scale"):
+        assert recorded[name] == pytest.approx(float(getattr(default, name)), rel=1e-6), name
+    assert recorded["floor"]["meas_std"] == pytest.approx(float(default.floor.meas_std), rel=1e-6)
+    assert summary["config"]["rolling"] is False and summary["contacts"] == "truth"
     s = summary["robots"][0]["scores"]
     assert s["contacts"]["f1"] == 1.0  # truth contacts against truth
     assert s["trajectory"]["ate"]["rmse"] < 3e-3
