@@ -142,36 +142,39 @@ def read_carmen(path: str | os.PathLike, flaser_fov_deg: float = 180.0) -> Laser
         raise FileNotFoundError(f"{path}: no such file")
     scans = {"FLASER": [], "ROBOTLASER1": []}  # (t, ranges, odometry pose, bearings, laser pose, line)
     odom = []
-    with _open_text(path) as f:
-        for lineno, line in enumerate(f, 1):
-            tokens = line.split()
-            if not tokens or tokens[0].startswith("#"):
-                continue
-            where, tag = f"{path}:{lineno}", tokens[0]
-            if tag == "FLASER":
-                _need(tokens, 2, where, tag)
-                n = _count(tokens[1], where, "num_readings")
-                _need(tokens, n + 11, where, tag)
-                v = _floats(tokens[2 : n + 9], where)
-                scans[tag].append((v[n + 6], v[:n], v[n + 3 : n + 6], flaser_bearings(n, flaser_fov_deg), None, where))
-            elif tag == "ROBOTLASER1":
-                _need(tokens, 9, where, tag)
-                n = _count(tokens[8], where, "num_readings")
-                _need(tokens, n + 10, where, tag)
-                m = _count(tokens[n + 9], where, "num_remissions")
-                _need(tokens, n + m + 24, where, tag)
-                head = _floats(tokens[2:6], where)
-                r = np.asarray(_floats(tokens[9 : 9 + n], where))
-                r = np.where(r >= head[3], np.inf, r)  # at or beyond maximum_range: no return
-                tail = _floats(tokens[n + m + 10 : n + m + 22], where)
-                bearings = head[0] + head[2] * np.arange(n)
-                scans[tag].append((tail[11], r, tail[3:6], bearings, tail[0:3], where))
-            elif tag == "ODOM":
-                _need(tokens, 8, where, tag)
-                v = _floats(tokens[1:8], where)
-                odom.append((v[6], v[0:3]))
-            elif not _TAG.match(tag):
-                raise ValueError(f"{where}: not a CARMEN message (first field {tag!r})")
+    try:
+        with _open_text(path) as f:
+            for lineno, line in enumerate(f, 1):
+                tokens = line.split()
+                if not tokens or tokens[0].startswith("#"):
+                    continue
+                where, tag = f"{path}:{lineno}", tokens[0]
+                if tag == "FLASER":
+                    _need(tokens, 2, where, tag)
+                    n = _count(tokens[1], where, "num_readings")
+                    _need(tokens, n + 11, where, tag)
+                    v = _floats(tokens[2 : n + 9], where)
+                    scans[tag].append((v[n + 6], v[:n], v[n + 3 : n + 6], flaser_bearings(n, flaser_fov_deg), None, where))
+                elif tag == "ROBOTLASER1":
+                    _need(tokens, 9, where, tag)
+                    n = _count(tokens[8], where, "num_readings")
+                    _need(tokens, n + 10, where, tag)
+                    m = _count(tokens[n + 9], where, "num_remissions")
+                    _need(tokens, n + m + 24, where, tag)
+                    head = _floats(tokens[2:6], where)
+                    r = np.asarray(_floats(tokens[9 : 9 + n], where))
+                    r = np.where(r >= head[3], np.inf, r)  # at or beyond maximum_range: no return
+                    tail = _floats(tokens[n + m + 10 : n + m + 22], where)
+                    bearings = head[0] + head[2] * np.arange(n)
+                    scans[tag].append((tail[11], r, tail[3:6], bearings, tail[0:3], where))
+                elif tag == "ODOM":
+                    _need(tokens, 8, where, tag)
+                    v = _floats(tokens[1:8], where)
+                    odom.append((v[6], v[0:3]))
+                elif not _TAG.match(tag):
+                    raise ValueError(f"{where}: not a CARMEN message (first field {tag!r})")
+    except (UnicodeDecodeError, EOFError, gzip.BadGzipFile) as e:
+        raise ValueError(f"{path}: not a text CARMEN log ({type(e).__name__}: {e})") from None
     tag = "ROBOTLASER1" if scans["ROBOTLASER1"] else "FLASER"
     rows = scans[tag]
     if not rows:

@@ -46,12 +46,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def detect_format(path: Path) -> str:
     """robot / laser-npz from an .npz's keys, else carmen (text)."""
+    import zipfile
+
     with open(path, "rb") as f:
         head = f.read(4)
+    if not head:
+        raise ValueError(f"input {path}: the file is empty")
     if head != b"PK\x03\x04":
         return "carmen"
-    with np.load(path, allow_pickle=False) as z:
-        keys = set(z.files)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            keys = set(z.files)
+    except (OSError, EOFError, zipfile.BadZipFile, ValueError) as e:
+        raise ValueError(f"input {path}: not a readable .npz ({type(e).__name__}: {e})") from None
     if {"scan_t", "ranges", "bearings"} <= keys:
         return "laser-npz"
     return "robot"
@@ -67,8 +74,9 @@ def _true_maps(args, log_path: Path):
     return [load_map(p) for p in paths]
 
 
-def _load(args, path: Path, fmt: str, values: dict):
-    """(inputs dict, robot names, true maps per robot or None, lo_constraints used)."""
+def _load(args, path: Path, fmt: str, values: dict, progress=None):
+    """(inputs dict, robot names, true maps per robot or None, lo_constraints used); every input is
+    read and checked before the estimator runs (which reports `progress(0, frames)` as it starts)."""
     from jaxquad.io.carmen import load_laser_log, read_carmen
 
     if fmt in ("carmen", "laser-npz"):
@@ -80,12 +88,12 @@ def _load(args, path: Path, fmt: str, values: dict):
     from jaxquad.io import load_log
 
     log = load_log(path)
+    maps = _true_maps(args, path)
     x = laser_inputs(log, args.scans, args.contacts, args.band_height, 0.2, values["max_laser_range"],
-                     args.observer_params, values["leg_yaw_rate_std"])  # fmt: skip
+                     args.observer_params, values["leg_yaw_rate_std"], progress)  # fmt: skip
     n = x["odom"].shape[0]
     fleet = "fallen" in log
     names = [f"robot_{i:03d}" for i in range(n)] if fleet else ["robot"]
-    maps = _true_maps(args, path)
     per_robot = None
     if maps:
         world = np.asarray(log["world_index"]) if "world_index" in log else np.zeros(n, int)
@@ -94,8 +102,7 @@ def _load(args, path: Path, fmt: str, values: dict):
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
+    from jaxquad.cli import progress_bar
     from jaxquad.io import atomic_dir, check_output_dir, to_json, write_json
     from jaxquad.slam import report
     from jaxquad.slam.params import DEFAULTS_FILE, load_params, slam_config
@@ -109,20 +116,12 @@ def run(args: argparse.Namespace) -> int:
     check_output_dir(args.out, kind=SUMMARY_KIND)
     values = load_params(args.params)
     fmt = detect_format(path) if args.format == "auto" else args.format
-    x, names, true_maps, lo_constraints = _load(args, path, fmt, values)
-    grid = map_grid(x, values["resolution"], values["max_laser_range"])
-    spec, params = slam_config(values, grid, lo_constraints, x["T_base_laser"])
-
-    bar = tqdm(total=None, desc=f"slam {len(names)} robot(s)", unit="scan")
-
-    def progress(done: int, total: int) -> None:
-        bar.total = total
-        bar.update(done - bar.n)
-
-    try:
+    # The bar appears once the inputs are checked: the estimator's start, or the first SLAM chunk.
+    with progress_bar("slam", "scan") as progress:
+        x, names, true_maps, lo_constraints = _load(args, path, fmt, values, progress)
+        grid = map_grid(x, values["resolution"], values["max_laser_range"])
+        spec, params = slam_config(values, grid, lo_constraints, x["T_base_laser"])
         state, out, _ = run_fleet(spec, params, x, progress)
-    finally:
-        bar.close()
     final = final_poses(state, out)
     t = np.asarray(x["t"], np.float64)
     summary = {
