@@ -145,7 +145,8 @@ def test_demo_end_to_end(tmp_path):
     assert s["params"]["paper"]["observer"]["bandwidth"] == 30.0 and "floor" in s["params"]["truth"]
     assert s["pipeline_config"]["truth"]["contacts"] == "truth"
     fleet = s["fleet_config"]
-    assert (fleet["robot"], fleet["n_robots"], fleet["style"], fleet["width"], fleet["height"]) == ("go2", 1, "aggressive", 32, 24)
+    assert (fleet["robot"], fleet["n_robots"], fleet["style"]) == ("go2", 1, "aggressive")
+    assert (fleet["width"], fleet["height"]) == (32, 24)
     # Ground-truth contacts scored against ground truth: exact.
     assert s["sources"]["truth"]["contact F1"]["value"] == 1.0
     assert 0.0 <= s["sources"]["tuned"]["contact F1"]["value"] <= 1.0

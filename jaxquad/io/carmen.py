@@ -154,7 +154,8 @@ def read_carmen(path: str | os.PathLike, flaser_fov_deg: float = 180.0) -> Laser
                     n = _count(tokens[1], where, "num_readings")
                     _need(tokens, n + 11, where, tag)
                     v = _floats(tokens[2 : n + 9], where)
-                    scans[tag].append((v[n + 6], v[:n], v[n + 3 : n + 6], flaser_bearings(n, flaser_fov_deg), None, where))
+                    bearings = flaser_bearings(n, flaser_fov_deg)
+                    scans[tag].append((v[n + 6], v[:n], v[n + 3 : n + 6], bearings, None, where))
                 elif tag == "ROBOTLASER1":
                     _need(tokens, 9, where, tag)
                     n = _count(tokens[8], where, "num_readings")
