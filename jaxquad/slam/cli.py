@@ -139,6 +139,9 @@ def run(args: argparse.Namespace) -> int:
             report.write_robot(folder, grid, t, s_i, o_i, final[i])
             rep = report.robot_report(spec, t, s_i, o_i, final[i], x, i, None if true_maps is None else true_maps[i])
             summary["robots"].append({"name": name, **rep})
+            if true_maps is not None:
+                gt = x["gt"][i] if "gt" in x else None
+                report.draw_map_vs_truth(folder / "map_vs_truth.png", grid, s_i, final[i], x["odom"][i], gt, true_maps[i])
         write_json(tmp / "summary.json", summary)
     print(to_json(_brief(summary, args.out)))
     return 0

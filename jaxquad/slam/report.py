@@ -4,6 +4,7 @@
   trajectory_final.tum  each scan's base pose after the last optimization, stamped with the scan's time
   map.pgm, map.yaml     the occupancy map at the final node poses (map_server format)
   graph.g2o             the final pose graph: nodes (base poses) and edges (matches, leg odometry, loops)
+  map_vs_truth.png      with a true map: the map beside it, walls overlaid, and the trajectories
 
 Scores (with ground truth): ATE/ARE/APE/RPE and segment drift of the online, final and odometry-only
 trajectories against the truth (evo's definitions, SE(3) Umeyama alignment, 2D poses at z = 0), and
@@ -112,3 +113,45 @@ def write_robot(folder: Path, grid: GridSpec, t: np.ndarray, state, out, final: 
     write_tum(folder / "trajectory_final.tum", tum_of(t, final), header="SLAM pose at each scan, last optimization")
     save_map(folder / "map.yaml", to_occupancy_map(grid, _grid(state)))
     write_g2o(folder / "graph.g2o", graph_of(state))
+
+
+def draw_map_vs_truth(path: Path, grid: GridSpec, state, final: np.ndarray, odom: np.ndarray, gt: np.ndarray | None,
+                      true_map) -> None:  # fmt: skip
+    """The SLAM map (left) and the true map (right, with the SLAM's occupied cells in red), with the final
+    SLAM, odometry and true trajectories."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jaxquad.io.atomic import atomic_open
+    from jaxquad.metrics import resample_map
+
+    est = to_occupancy_map(grid, _grid(state))
+    fig, axes = plt.subplots(1, 2, figsize=(13, 6), constrained_layout=True)
+    res, ox, oy = true_map.resolution, true_map.origin[0], true_map.origin[1]
+    extent = [ox, ox + true_map.grid.shape[1] * res, oy, oy + true_map.grid.shape[0] * res]
+    shown = np.where(est.grid < 0, 0.5, 1.0 - est.grid / 100.0)  # unknown grey, free white, occupied black
+    axes[0].imshow(shown, origin="lower", cmap="gray", vmin=0, vmax=1, extent=[
+        grid.origin_x, grid.origin_x + grid.cols * grid.resolution, grid.origin_y,
+        grid.origin_y + grid.rows * grid.resolution])  # fmt: skip
+    axes[0].set_title("SLAM map (final poses)")
+    overlay = np.ones(true_map.grid.shape + (3,))
+    overlay[true_map.grid > 65] = (0.2, 0.2, 0.2)
+    overlay[resample_map(est, true_map).grid > 65] = (0.85, 0.1, 0.1)
+    axes[1].imshow(overlay, origin="lower", extent=extent)
+    axes[1].set_title("true map (grey) and SLAM occupied cells (red)")
+    for ax in axes:
+        if gt is not None:
+            ax.plot(gt[:, 0], gt[:, 1], color="tab:green", lw=1.2, label="truth")
+        ax.plot(odom[:, 0], odom[:, 1], color="tab:orange", lw=0.8, label="odometry")
+        ax.plot(final[:, 0], final[:, 1], color="tab:blue", lw=0.8, label="SLAM (final)")
+        ax.set_xlim(extent[0], extent[1])
+        ax.set_ylim(extent[2], extent[3])
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+    axes[0].legend(loc="upper right", fontsize=8)
+    with atomic_open(path, "wb") as f:
+        fig.savefig(f, format="png", dpi=90)
+    plt.close(fig)
