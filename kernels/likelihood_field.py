@@ -36,9 +36,15 @@ class LikelihoodField(eqx.Module):
 
 
 def likelihood_field(
-    grid: np.ndarray, resolution: float, origin_xy: tuple[float, float], max_dist: float = 2.0
+    grid: np.ndarray, resolution: float, origin_xy: tuple[float, float], max_dist: float = 2.0, surfaces: bool = False
 ) -> LikelihoodField:
-    """Build the field of a grid (int, -1 unknown, 0..100 occupancy) with NumPy/scipy (not jittable)."""
+    """Build the field of a grid (int, -1 unknown, 0..100 occupancy) with NumPy/scipy (not jittable).
+
+    surfaces: measure distances to the occupied cells that border a non-occupied cell only. A map whose
+    obstacles are filled (a ground-truth map) otherwise reads 0 all through an obstacle, so a beam that
+    overshoots a surface into it scores better than one that falls as short: with noisy ranges the
+    likelihood's peak moves towards the obstacles the sensor faces. A map built from scans has only
+    surfaces occupied, and this changes nothing there."""
     from scipy.ndimage import distance_transform_edt
 
     grid = np.asarray(grid)
@@ -47,6 +53,9 @@ def likelihood_field(
     if not (np.isfinite(max_dist) and max_dist > 0):
         raise ValueError(f"likelihood max distance must be positive, got {max_dist}")
     occupied = grid > _OCCUPIED
+    if surfaces:
+        p = np.pad(occupied, 1, constant_values=False)
+        occupied = occupied & ~(p[:-2, 1:-1] & p[2:, 1:-1] & p[1:-1, :-2] & p[1:-1, 2:])
     if occupied.any():
         dist = distance_transform_edt(~occupied) * resolution
     else:
