@@ -13,10 +13,11 @@ of `frames_per_tick` frames (3: 0.096 s, the MPPI model step), replanning on a t
 input is set (a flag shared by all robots, so under `vmap` a `lax.cond` skips it on the other ticks)
 or, without a plan, on the goal critics alone.
 
-A robot visits the goals of its mission in turn. An attempt ends `reached` when the navigation
-stack reports arrival (its own estimate within 0.25 m / 0.25 rad of the goal), `timeout` after
-`timeout_base + path length / timeout_speed` seconds (both end only the attempt), or `collided`,
-`lost`, `fallen` (these end the run; the goals left are `skipped`).
+A robot visits the goals of its mission in turn. When the navigation stack reports arrival (its own
+estimate within the controller's goal tolerance, `MppiParams.goal_xy_tol` / `goal_yaw_tol`), the attempt
+ends `reached` if the true pose is within `success_xy` / `success_yaw` of the goal (0.25 m / 0.25 rad),
+else `missed`; it ends `timeout` after `timeout_base + path length / timeout_speed` seconds (these three
+end only the attempt), or `collided`, `lost`, `fallen` (these end the run; the goals left are `skipped`).
 
 `state = init(params, inputs, qpos0, key)`, `state, out = tick(params, state, inputs)`: one robot,
 pure, `vmap` over robots with `input_axes(fleet)`.
@@ -44,8 +45,8 @@ from jaxquad.kernels.particle_filter import AmclInputs, AmclParams, AmclState, a
 from jaxquad.kernels.scan import CameraIntrinsics, baseline_scan, stabilized_scan
 from jaxquad.nav import navigate as nav
 
-OUTCOMES = ("pending", "reached", "collided", "lost", "timeout", "fallen", "skipped")
-PENDING, REACHED, COLLIDED, LOST, TIMEOUT, FALLEN, SKIPPED = range(len(OUTCOMES))
+OUTCOMES = ("pending", "reached", "missed", "collided", "lost", "timeout", "fallen", "skipped")
+PENDING, REACHED, MISSED, COLLIDED, LOST, TIMEOUT, FALLEN, SKIPPED = range(len(OUTCOMES))
 ODOMETRY = ("leg", "visual")
 SCANS = ("stabilized", "baseline")
 
@@ -86,6 +87,8 @@ class LoopParams(eqx.Module):
     range_max: Float[Array, ""]
     footprint_center: Float[Array, " 2"]  # m, centre of the robot's footprint rectangle in the base frame
     footprint_half: Float[Array, " 2"]  # m, its half length and width
+    success_xy: Float[Array, ""]  # m, true distance to the goal at arrival for a success
+    success_yaw: Float[Array, ""]  # rad
     lost_error: Float[Array, ""]  # m
     lost_time: Float[Array, ""]  # s
     timeout_base: Float[Array, ""]  # s
@@ -280,10 +283,12 @@ def make_loop(fleet, config: LoopConfig) -> LoopFunctions:
         )  # fmt: skip
 
         t, truth = s.sim.t, true_pose(s.sim)
+        d_xy, d_yaw = _pose_error(truth, goal)
+        on_goal = (d_xy <= params.success_xy) & (d_yaw <= params.success_yaw)
         ended = jnp.select(
             [s.sim.collided, s.sim.fallen, s.lost_for >= params.lost_time - 0.5 * frame_dt, out.arrived,
              t - s.attempt_start > s.limit],
-            [COLLIDED, FALLEN, LOST, REACHED, TIMEOUT], PENDING,
+            [COLLIDED, FALLEN, LOST, jnp.where(on_goal, REACHED, MISSED), TIMEOUT], PENDING,
         )  # fmt: skip
         ended = jnp.where(active, ended, PENDING)
         finish = ended != PENDING
@@ -291,7 +296,6 @@ def make_loop(fleet, config: LoopConfig) -> LoopFunctions:
         at_k = jnp.arange(G) == k
         outcome = jnp.where(finish & at_k, ended, s.outcome)
         outcome = jnp.where(terminal & (jnp.arange(G) > k), SKIPPED, outcome)
-        d_xy, d_yaw = _pose_error(truth, goal)
         elapsed = jnp.where(finish & at_k, t - s.attempt_start, s.elapsed)
         end_error = jnp.where((finish & at_k)[:, None], jnp.stack([d_xy, d_yaw]), s.end_error)
         goal_idx = jnp.where(terminal, G, jnp.where(finish, s.goal + 1, s.goal))

@@ -34,6 +34,8 @@ from jaxquad.nav import navigate as nav
 
 VARIANTS = {"full": ("leg", "stabilized"), "baseline": ("visual", "baseline")}
 AMCL_FILE = Path(__file__).with_name("amcl.yaml")
+REPLAN_TICKS = 10  # control ticks between two plans (0.96 s)
+SUCCESS_XY, SUCCESS_YAW = 0.25, 0.25  # m, rad: a goal is reached when the true pose is this close (the paper's)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,6 +56,8 @@ class NavConfig:
     pool_size: int = 64  # distinct goal poses drawn in the world
     clearance: float = 0.5  # m from every box, for starts and goals
     min_separation: float = 1.0  # m between consecutive goals
+    arrive_xy: float = 0.15  # m: the controller's goal tolerance (its estimate), tighter than success's 0.25 m
+    arrive_yaw: float = 0.15  # rad (success: 0.25 rad)
     chunk_ticks: int = 100  # control ticks per compiled chunk (a multiple of the replan period)
     contacts: str = "truth"  # the estimator's contact source
     odometry: str | None = None
@@ -69,6 +73,9 @@ class NavConfig:
         for name in ("n_robots", "n_goals", "particles", "samples", "horizon", "pool_size", "chunk_ticks", "band_height"):
             if getattr(self, name) is not None and int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.chunk_ticks % REPLAN_TICKS:
+            raise ValueError(f"chunk_ticks must be a multiple of {REPLAN_TICKS}, got {self.chunk_ticks}")
+        self.loop_config()  # checks the overrides and reads the AMCL file now, before any heavy work
 
     def localize_params(self):
         """The AMCL parameters (`jaxquad.localize.LocalizeParams`) of the run."""
@@ -111,8 +118,13 @@ def _params(cfg: NavConfig, loop: cl.LoopConfig, fleet, occ, tick_dt: float) -> 
     rows, cols = occ.grid.shape
     # Path capacity: a winding route across the map (1.5 x its sides), one point every 4 cells.
     n_path = max(32, math.ceil(1.5 * (rows + cols) / 4))
-    nav_params = nav.NavParams.default(n_samples=cfg.samples, horizon=cfg.horizon, n_path_points=n_path)
-    nav_params = eqx.tree_at(lambda p: p.controller.dt, nav_params, jnp.asarray(tick_dt, jnp.float32))
+    nav_params = nav.NavParams.default(
+        n_samples=cfg.samples, horizon=cfg.horizon, n_path_points=n_path, replan_ticks=REPLAN_TICKS
+    )
+    nav_params = eqx.tree_at(
+        lambda p: (p.controller.dt, p.controller.goal_xy_tol, p.controller.goal_yaw_tol), nav_params,
+        tuple(jnp.asarray(v, jnp.float32) for v in (tick_dt, cfg.arrive_xy, cfg.arrive_yaw)),
+    )
     lp = cfg.localize_params()
     T_bc = np.asarray(fleet.T_base_camera)
     K = np.asarray(fleet.K)
@@ -126,7 +138,7 @@ def _params(cfg: NavConfig, loop: cl.LoopConfig, fleet, occ, tick_dt: float) -> 
         intrinsics=CameraIntrinsics(f32(K[0, 0]), f32(K[1, 1]), f32(K[0, 2]), f32(K[1, 2])),
         range_min=f32(lp.laser_min_range), range_max=f32(lp.laser_max_range),
         footprint_center=f32(center), footprint_half=f32(half),
-        lost_error=f32(0.5), lost_time=f32(2.0), timeout_base=f32(30.0), timeout_speed=f32(0.1),
+        success_xy=f32(SUCCESS_XY), success_yaw=f32(SUCCESS_YAW), lost_error=f32(0.5), lost_time=f32(2.0), timeout_base=f32(30.0), timeout_speed=f32(0.1),
     )  # fmt: skip
 
 
@@ -174,8 +186,6 @@ def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray
     occ = missions.MAP_SOURCES[cfg.map](world, cfg.robot, cfg.style, cfg.seed)
     tick_dt = loop.frames_per_tick * fleet.frame_dt
     params = _params(cfg, loop, fleet, occ, tick_dt)
-    if cfg.chunk_ticks % params.nav.replan_ticks:
-        raise ValueError(f"chunk_ticks must be a multiple of {params.nav.replan_ticks}, got {cfg.chunk_ticks}")
     grid = nav.cost_grid(params.nav, jnp.asarray(occ.grid), jnp.asarray(occ.origin[:2], jnp.float32), occ.resolution)
     rng = np.random.default_rng([cfg.seed, 11])
     open_cells = missions.reachable_cells(np.asarray(jax.jit(nav.step_weights)(grid.cost, params.nav.cost_weight)))
