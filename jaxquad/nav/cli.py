@@ -45,6 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--band-height", type=int, default=1, help="scan band height in px (default 1)")
     parser.add_argument("--chunk-ticks", type=int, default=100,
                         help="control ticks per compiled chunk, a multiple of 10 (default 100 = 9.6 s)")  # fmt: skip
+    parser.add_argument("--max-seconds", type=float, default=None,
+                        help="stop after this much simulated time, s (default: when every run has ended)")  # fmt: skip
     parser.add_argument("--plot-robots", type=int, default=8, help="robots drawn in paths.png (default 8)")
 
 
@@ -59,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
         robot=args.robot, world=args.world, n_robots=args.robots, n_goals=args.goals, variant=args.variant,
         map=args.map, style=args.style, seed=args.seed, particles=args.particles, amcl_params=args.amcl_params,
         samples=args.samples, horizon=args.horizon, band_height=args.band_height, chunk_ticks=args.chunk_ticks,
-        odometry=args.odometry, scans=args.scans, trace_robots=max(args.plot_robots, 1),
+        odometry=args.odometry, scans=args.scans, max_seconds=args.max_seconds, trace_robots=max(args.plot_robots, 1),
     )  # fmt: skip
     result = navigate(cfg)
     summary = summarize(result)

@@ -59,6 +59,7 @@ class NavConfig:
     arrive_xy: float = 0.15  # m: the controller's goal tolerance (its estimate), tighter than success's 0.25 m
     arrive_yaw: float = 0.15  # rad (success: 0.25 rad)
     chunk_ticks: int = 100  # control ticks per compiled chunk (a multiple of the replan period)
+    max_seconds: float | None = None  # stop after this much simulated time (whole chunks); None: when all are done
     contacts: str = "truth"  # the estimator's contact source
     odometry: str | None = None
     scans: str | None = None
@@ -73,6 +74,8 @@ class NavConfig:
         for name in ("n_robots", "n_goals", "particles", "samples", "horizon", "pool_size", "chunk_ticks", "band_height"):
             if getattr(self, name) is not None and int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.max_seconds is not None and not self.max_seconds > 0:
+            raise ValueError(f"max_seconds must be positive, got {self.max_seconds}")
         if self.chunk_ticks % REPLAN_TICKS:
             raise ValueError(f"chunk_ticks must be a multiple of {REPLAN_TICKS}, got {self.chunk_ticks}")
         self.loop_config()  # checks the overrides and reads the AMCL file now, before any heavy work
@@ -110,7 +113,7 @@ class NavResult:
     true_pose: np.ndarray  # (T, n_trace, 3)
     pose: np.ndarray  # (T, n_trace, 3) localization estimate
     compile_s: float
-    run_s: float  # wall time of the chunks, compilation excluded
+    run_s: float  # wall time of the chunks and of copying their outputs to the host, compilation excluded
     sim_s: float  # simulated time
 
 
@@ -170,7 +173,8 @@ def _compiled_functions(fleet, loop: cl.LoopConfig):
 
 def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray | None = None, progress: bool = True):
     """Run the fleet; `goals` (K, 3) replaces the drawn pool and `starts` (N, 3) the drawn starts (then each
-    robot visits pool goals in order, goal i % K for its i-th)."""
+    robot visits pool goals in order, goal i % K for its i-th). Attempts still running when `max_seconds`
+    stops the run stay `pending`."""
     from tqdm import tqdm
 
     from jaxquad.localize.run import field_of_map
@@ -217,17 +221,20 @@ def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray
     compile_s = time.perf_counter() - t0
     # Every attempt ends by its time limit: the longest possible run bounds the loop.
     finite = np.asarray(table.value)[np.isfinite(np.asarray(table.value))]
-    longest = cfg.n_goals * (30.0 + float(finite.max(initial=0.0)) * occ.resolution / 0.1) + 10.0
-    n_chunks_max = math.ceil(longest / (cfg.chunk_ticks * tick_dt)) + 1
+    longest_path = float(finite.max(initial=0.0)) * occ.resolution
+    longest = cfg.n_goals * (float(params.timeout_base) + longest_path / float(params.timeout_speed)) + 10.0
+    if cfg.max_seconds is not None:
+        longest = min(longest, cfg.max_seconds)
+    n_chunks_max = max(1, math.ceil(longest / (cfg.chunk_ticks * tick_dt) - 1e-9))
     outs, run_s = [], 0.0
     bar = tqdm(total=cfg.n_robots * cfg.n_goals, desc=f"navigate {cfg.n_robots} x {cfg.robot}", unit="goal",
                disable=not progress)  # fmt: skip
     for _ in range(n_chunks_max):
         t1 = time.perf_counter()
         states, out = compiled(params, states, inputs)
-        done = np.asarray(states.done)
-        run_s += time.perf_counter() - t1
         outs.append(_keep(out, cfg.trace_robots))
+        done = np.asarray(states.done)
+        run_s += time.perf_counter() - t1  # the outputs' copy to the host included
         bar.update(int((np.asarray(states.outcome) != cl.PENDING).sum()) - bar.n)
         if done.all():
             break
