@@ -17,7 +17,6 @@ odometry + stabilized scans).
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import sys
 import time
@@ -107,7 +106,11 @@ def main() -> int:
     print("|---|" + "---:|" * len(cols))
     for label in labels:
         cells = {(x["world"], x["robot"]): x for x in rows if x["cell"] == label}
-        print(f"| {label} | " + " | ".join(f"{100 * cells[c]['success_rate']:.1f}% of {cells[c]['goals']}" for c in cols) + " |")
+        print(
+            f"| {label} | "
+            + " | ".join(f"{100 * cells[c]['success_rate']:.1f}% of {cells[c]['goals']}" for c in cols)
+            + " |"
+        )
     print("\n| robot | world | method | runs | reached | missed | collided | lost | timeout | fallen | skipped "
           "| time to goal s (median) | loc. error m (median / p99) | compile s | robot-s per s |")  # fmt: skip
     print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|")

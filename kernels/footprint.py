@@ -19,9 +19,7 @@ def _axes(yaw: Float[Array, "*B"]) -> Float[Array, "*B 2 2"]:
     return jnp.stack([jnp.stack([c, s], -1), jnp.stack([-s, c], -1)], -2)
 
 
-def footprint_overlaps(
-    boxes: Boxes, pose: Float[Array, " 3"], half_extents: Float[Array, " 2"]
-) -> Bool[Array, " B"]:
+def footprint_overlaps(boxes: Boxes, pose: Float[Array, " 3"], half_extents: Float[Array, " 2"]) -> Bool[Array, " B"]:
     """Which boxes the rectangle of `half_extents` (m, along the base's x and y) centred at the planar
     pose (x, y (m), yaw (rad)) overlaps."""
     a = _axes(pose[2])  # (2, 2): rows are the footprint's unit axes

@@ -26,15 +26,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="full: leg-inertial odometry + IMU-stabilized scans; baseline: visual odometry + "
                              "fixed-row scans (default full)")  # fmt: skip
     parser.add_argument("--odometry", default=None, choices=["leg", "visual"],
-                        help="override the variant's odometry (leg: B+LO with --variant baseline; default: the variant's)")  # fmt: skip
+                        help="override the variant's odometry (leg with --variant baseline: B+LO; default: the "
+                             "variant's)")  # fmt: skip
     parser.add_argument("--scans", default=None, choices=["stabilized", "baseline"],
-                        help="override the variant's scans (stabilized: B+SS with --variant baseline; default: the variant's)")  # fmt: skip
-    parser.add_argument("--map", default="truth", choices=sorted(MAP_SOURCES),
-                        help="the map navigated on: truth = the world's true occupancy map (default truth)")  # fmt: skip
+                        help="override the variant's scans (stabilized with --variant baseline: B+SS; default: "
+                             "the variant's)")  # fmt: skip
+    parser.add_argument(
+        "--map",
+        default="truth",
+        choices=sorted(MAP_SOURCES),
+        help="the map navigated on: truth = the world's true occupancy map (default truth)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="world, starts, goals, robot variation, noise (default 0)")
     parser.add_argument("--out", required=True, help="output folder (replaced whole when the run succeeds)")
-    parser.add_argument("--style", default="aggressive", choices=["calm", "aggressive"],
-                        help="gait style: aggressive swings the body and stops and goes (default aggressive)")  # fmt: skip
+    parser.add_argument(
+        "--style",
+        default="aggressive",
+        choices=["calm", "aggressive"],
+        help="gait: aggressive swings the body and stops and goes (default aggressive)",
+    )
     parser.add_argument("--particles", type=int, default=None,
                         help="AMCL particles per robot (default: max_particles of the AMCL file, 2000)")  # fmt: skip
     parser.add_argument("--amcl-params", default=None,

@@ -226,7 +226,9 @@ def make_loop(fleet, config: LoopConfig) -> LoopFunctions:
         odom = _planar(est.pose.p_world_base, est.pose.q_world_base)
         vo_state = vo.init(params.vo, depth, leg_T(est)) if visual else None
         scan = scan_of(params, est, depth)
-        amcl, out = amcl_step(params.amcl, inputs.nav_map.field, amcl, AmclInputs(odom, scan.ranges, scan.bearings, k_step))
+        amcl, out = amcl_step(
+            params.amcl, inputs.nav_map.field, amcl, AmclInputs(odom, scan.ranges, scan.bearings, k_step)
+        )
         G = config.n_goals
         return LoopState(
             sim=sim, est=est, vo=vo_state, R_gyro=jnp.eye(3), amcl=amcl, pose=out.pose,
@@ -306,9 +308,9 @@ def make_loop(fleet, config: LoopConfig) -> LoopFunctions:
         nav_state = jax.tree.map(lambda a, b: jnp.where(finish, a, b), fresh, nav_state)
         cmd = jnp.where(done | finish, 0.0, out.cmd)
         s = dataclasses.replace(
-            s, nav=nav_state, cmd=cmd, goal=goal_idx.astype(jnp.int32), attempt_start=jnp.where(finish, t, s.attempt_start),
-            limit=jnp.where(finish, time_limit(params, m, next_gid, s.pose), s.limit), outcome=outcome,
-            elapsed=elapsed, end_error=end_error, done=done, key=key,
+            s, nav=nav_state, cmd=cmd, goal=goal_idx.astype(jnp.int32), outcome=outcome, elapsed=elapsed,
+            end_error=end_error, done=done, key=key, attempt_start=jnp.where(finish, t, s.attempt_start),
+            limit=jnp.where(finish, time_limit(params, m, next_gid, s.pose), s.limit),
         )  # fmt: skip
         return s, LoopOutput(
             t=t, true_pose=truth, pose=s.pose, odom=odom[-1], loc_error=err, goal=k, active=active,

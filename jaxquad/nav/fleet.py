@@ -71,7 +71,16 @@ class NavConfig:
             raise ValueError(f"variant must be one of {sorted(VARIANTS)}, got {self.variant!r}")
         if self.map not in missions.MAP_SOURCES:
             raise ValueError(f"map must be one of {sorted(missions.MAP_SOURCES)}, got {self.map!r}")
-        for name in ("n_robots", "n_goals", "particles", "samples", "horizon", "pool_size", "chunk_ticks", "band_height"):
+        for name in (
+            "n_robots",
+            "n_goals",
+            "particles",
+            "samples",
+            "horizon",
+            "pool_size",
+            "chunk_ticks",
+            "band_height",
+        ):
             if getattr(self, name) is not None and int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.max_seconds is not None and not self.max_seconds > 0:
@@ -125,7 +134,8 @@ def _params(cfg: NavConfig, loop: cl.LoopConfig, fleet, occ, tick_dt: float) -> 
         n_samples=cfg.samples, horizon=cfg.horizon, n_path_points=n_path, replan_ticks=REPLAN_TICKS
     )
     nav_params = eqx.tree_at(
-        lambda p: (p.controller.dt, p.controller.goal_xy_tol, p.controller.goal_yaw_tol), nav_params,
+        lambda p: (p.controller.dt, p.controller.goal_xy_tol, p.controller.goal_yaw_tol),
+        nav_params,
         tuple(jnp.asarray(v, jnp.float32) for v in (tick_dt, cfg.arrive_xy, cfg.arrive_yaw)),
     )
     lp = cfg.localize_params()
@@ -141,7 +151,8 @@ def _params(cfg: NavConfig, loop: cl.LoopConfig, fleet, occ, tick_dt: float) -> 
         intrinsics=CameraIntrinsics(f32(K[0, 0]), f32(K[1, 1]), f32(K[0, 2]), f32(K[1, 2])),
         range_min=f32(lp.laser_min_range), range_max=f32(lp.laser_max_range),
         footprint_center=f32(center), footprint_half=f32(half),
-        success_xy=f32(SUCCESS_XY), success_yaw=f32(SUCCESS_YAW), lost_error=f32(0.5), lost_time=f32(2.0), timeout_base=f32(30.0), timeout_speed=f32(0.1),
+        success_xy=f32(SUCCESS_XY), success_yaw=f32(SUCCESS_YAW), lost_error=f32(0.5), lost_time=f32(2.0),
+        timeout_base=f32(30.0), timeout_speed=f32(0.1),
     )  # fmt: skip
 
 
@@ -217,7 +228,9 @@ def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray
     keys = jax.random.split(jax.random.key(cfg.seed), cfg.n_robots)
     t0 = time.perf_counter()
     states = init(params, inputs, jnp.asarray(qpos0, jnp.float32), keys)
-    compiled = chunk.lower(params, states, inputs, n_ticks=cfg.chunk_ticks, replan_ticks=params.nav.replan_ticks).compile()
+    compiled = chunk.lower(
+        params, states, inputs, n_ticks=cfg.chunk_ticks, replan_ticks=params.nav.replan_ticks
+    ).compile()
     compile_s = time.perf_counter() - t0
     # Every attempt ends by its time limit: the longest possible run bounds the loop.
     finite = np.asarray(table.value)[np.isfinite(np.asarray(table.value))]

@@ -57,12 +57,12 @@ def summarize(result) -> dict:
         "controller_goal_tolerance": {"xy_m": cfg.arrive_xy, "yaw_rad": cfg.arrive_yaw},
         "time_to_goal_s": _stats(result.elapsed[reached]),
         "localization_error_m": _stats(err.ravel()),
-        "localization_error_median_per_robot_m": _stats(
-            np.array([np.median(e) for e in per_robot_err if e.size])
-        ),
+        "localization_error_median_per_robot_m": _stats(np.array([np.median(e) for e in per_robot_err if e.size])),
         "recoveries": int(rising.sum()),
         "timing": {
-            "compile_s": result.compile_s, "run_s": result.run_s, "simulated_s": result.sim_s,
+            "compile_s": result.compile_s,
+            "run_s": result.run_s,
+            "simulated_s": result.sim_s,
             "real_time_factor": result.sim_s / result.run_s if result.run_s > 0 else None,
             "robot_seconds_per_s": n * result.sim_s / result.run_s if result.run_s > 0 else None,
         },  # fmt: skip
@@ -85,8 +85,8 @@ def plot_paths(result, path, max_robots: int = 8) -> None:
     x0, y0 = occ.origin[0], occ.origin[1]
     extent = (x0, x0 + cols * occ.resolution, y0, y0 + rows * occ.resolution)
     image = np.where(occ.grid < 0, 0.8, 1.0 - np.clip(occ.grid, 0, 100) / 100.0)
-    colors = {"reached": "tab:green", "missed": "gold", "collided": "tab:red", "lost": "tab:purple", "timeout": "tab:orange",
-              "fallen": "tab:brown", "skipped": "tab:gray", "pending": "tab:gray"}  # fmt: skip
+    colors = {"reached": "tab:green", "missed": "gold", "collided": "tab:red", "lost": "tab:purple",
+              "timeout": "tab:orange", "fallen": "tab:brown", "skipped": "tab:gray", "pending": "tab:gray"}  # fmt: skip
     fig, ax = plt.subplots(figsize=(8, 8 * rows / max(cols, 1) + 0.5))
     ax.imshow(image, cmap="gray", vmin=0, vmax=1, origin="lower", extent=extent)
     m = min(max_robots, result.true_pose.shape[1])
