@@ -198,7 +198,7 @@ def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray
         compile_chunk=False,
     )  # fmt: skip
     world = fleet.worlds[0]
-    occ = missions.MAP_SOURCES[cfg.map](world, cfg.robot, cfg.style, cfg.seed)
+    occ = missions.MAP_SOURCES[cfg.map](cfg, world)
     tick_dt = loop.frames_per_tick * fleet.frame_dt
     params = _params(cfg, loop, fleet, occ, tick_dt)
     grid = nav.cost_grid(params.nav, jnp.asarray(occ.grid), jnp.asarray(occ.origin[:2], jnp.float32), occ.resolution)

@@ -1,9 +1,10 @@
 """What a navigation run is asked to do, drawn on the host (NumPy, seeded): the map the robots navigate
 on, a pool of reachable goal poses, start poses, each robot's goal sequence, and its footprint.
 
-Maps come from `MAP_SOURCES` (name -> function of the world and the run's robot, style and seed ->
-`OccupancyMap`); "truth" is the world's ground-truth map. A map built by SLAM on a route-following
-walk of the world is another entry of the same signature.
+Maps come from `MAP_SOURCES` (name -> function of the run's `NavConfig` and its world -> an
+`OccupancyMap` in the world frame); "truth" is the world's ground-truth map. A map built by the
+variant's SLAM on a route-following walk of the same world (`jaxquad.sim.rollout` with the run's
+robot, world, style and seed) is another entry of the same signature.
 
 Poses (starts and goals) are drawn on cells that are free in the navigation map, reachable by the
 planner from one another (its largest connected open region) and at least `clearance` from every
@@ -21,14 +22,14 @@ from jaxquad.io.maps import OccupancyMap
 from jaxquad.sim.worlds import World, box_signed_distance, occupancy_map
 
 
-def truth_map(world: World, robot: str, style: str, seed: int) -> OccupancyMap:
+def truth_map(cfg, world: World) -> OccupancyMap:
     """The world's ground-truth occupancy map (0.05 m cells)."""
-    del robot, style, seed  # the truth does not depend on how the world would be walked
+    del cfg  # the truth does not depend on how the world would be walked
     return occupancy_map(world)
 
 
-# name -> (world, robot, style, seed) -> OccupancyMap
-MAP_SOURCES: dict[str, Callable[[World, str, str, int], OccupancyMap]] = {"truth": truth_map}
+# name -> (NavConfig, World) -> OccupancyMap in the world frame
+MAP_SOURCES: dict[str, Callable[[object, World], OccupancyMap]] = {"truth": truth_map}
 
 
 def reachable_cells(weight: np.ndarray) -> np.ndarray:
