@@ -45,7 +45,7 @@ def run_cell(args, robot: str, world: str, label: str) -> dict:
             horizon=args.horizon, trace_robots=8,
         )  # fmt: skip
         t0 = time.perf_counter()
-        result = navigate(cfg, progress=False)
+        result = navigate(cfg, progress=None)
         print(f"{robot} {world} {label} seed {seed}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
         outcome.append(result.outcome)
         elapsed.append(result.elapsed[result.outcome == REACHED])

@@ -14,7 +14,6 @@ import pytest
 from scipy.sparse import csgraph
 
 from jaxquad import nav, robots
-from jaxquad.cli import main
 from jaxquad.io.jsonfile import to_json
 from jaxquad.io.maps import OccupancyMap
 from jaxquad.kernels.likelihood_field import likelihood_field
@@ -114,19 +113,6 @@ def test_footprint_holds_trunk_and_feet():
         assert 0.2 < half[0] < 0.4 and 0.1 < half[1] < 0.25  # a quadruped's planform, legs included
 
 
-def test_cli_fails_fast_on_bad_input(tmp_path, capsys):
-    for argv, words in [
-        (["--robots", "0"], "n_robots"), (["--amcl-params", str(tmp_path / "no.yaml")], "not found"),
-        (["--chunk-ticks", "15"], "multiple of 10"),
-    ]:  # fmt: skip
-        assert main(["navigate", "--out", str(tmp_path / "o"), *argv]) == 1
-        assert words in capsys.readouterr().err
-    (tmp_path / "full").mkdir()
-    (tmp_path / "full" / "x").write_text("")
-    assert main(["navigate", "--out", str(tmp_path / "full")]) == 1
-    assert "non-empty folder" in capsys.readouterr().err
-
-
 @pytest.fixture(scope="module")
 def run():
     """Two Go2s in the house (seed 0): robot 0 walks to two goals about a metre apart, robot 1 starts with
@@ -139,7 +125,7 @@ def run():
     wall = np.argmax(world.half[:4, 0])  # the first wall along x (y = 0)
     starts = np.array([[2.0, 2.0, 0.0], [3.0, float(world.center[wall, 1]) + 0.15, 0.0]])
     goals = np.array([[3.1, 2.3, 0.6], [2.3, 2.9, 2.5]])
-    return navigate(cfg, goals=goals, starts=starts, progress=False)
+    return navigate(cfg, goals=goals, starts=starts, progress=None)
 
 
 @pytest.mark.slow

@@ -61,11 +61,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from jaxquad.cli import progress_bar
     from jaxquad.io.atomic import atomic_dir, check_output_dir
     from jaxquad.io.jsonfile import to_json, write_json
-    from jaxquad.nav.fleet import NavConfig, navigate
+    from jaxquad.nav.fleet import REPLAN_TICKS, NavConfig, navigate
     from jaxquad.nav.report import plot_paths, summarize
 
+    for option, value in (("--robots", args.robots), ("--goals", args.goals), ("--samples", args.samples),
+                          ("--horizon", args.horizon), ("--band-height", args.band_height),
+                          ("--chunk-ticks", args.chunk_ticks), ("--plot-robots", args.plot_robots),
+                          ("--particles", 1 if args.particles is None else args.particles)):  # fmt: skip
+        if value < 1:
+            raise ValueError(f"{option} must be >= 1, got {value}")
+    if args.chunk_ticks % REPLAN_TICKS:
+        raise ValueError(f"--chunk-ticks must be a multiple of {REPLAN_TICKS}, got {args.chunk_ticks}")
+    if args.max_seconds is not None and not args.max_seconds > 0:
+        raise ValueError(f"--max-seconds must be positive, got {args.max_seconds}")
     check_output_dir(args.out, kind=SUMMARY_KIND)
     cfg = NavConfig(
         robot=args.robot, world=args.world, n_robots=args.robots, n_goals=args.goals, variant=args.variant,
@@ -73,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
         samples=args.samples, horizon=args.horizon, band_height=args.band_height, chunk_ticks=args.chunk_ticks,
         odometry=args.odometry, scans=args.scans, max_seconds=args.max_seconds, trace_robots=max(args.plot_robots, 1),
     )  # fmt: skip
-    result = navigate(cfg)
+    with progress_bar("navigate", "goal") as progress:
+        result = navigate(cfg, progress=progress)
     summary = summarize(result)
     with atomic_dir(args.out) as tmp:
         write_json(tmp / "summary.json", summary)

@@ -182,12 +182,11 @@ def _compiled_functions(fleet, loop: cl.LoopConfig):
     return _FUNCTIONS[key]
 
 
-def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray | None = None, progress: bool = True):
+def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray | None = None, progress=None):
     """Run the fleet; `goals` (K, 3) replaces the drawn pool and `starts` (N, 3) the drawn starts (then each
     robot visits pool goals in order, goal i % K for its i-th). Attempts still running when `max_seconds`
-    stops the run stay `pending`."""
-    from tqdm import tqdm
-
+    stops the run stay `pending`. `progress(done, total)` is called with the goals ended after each chunk
+    (first with 0 once the run is set up)."""
     from jaxquad.localize.run import field_of_map
     from jaxquad.sim import FleetConfig, build_fleet
 
@@ -240,18 +239,19 @@ def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray
         longest = min(longest, cfg.max_seconds)
     n_chunks_max = max(1, math.ceil(longest / (cfg.chunk_ticks * tick_dt) - 1e-9))
     outs, run_s = [], 0.0
-    bar = tqdm(total=cfg.n_robots * cfg.n_goals, desc=f"navigate {cfg.n_robots} x {cfg.robot}", unit="goal",
-               disable=not progress)  # fmt: skip
+    total = cfg.n_robots * cfg.n_goals
+    if progress is not None:
+        progress(0, total)
     for _ in range(n_chunks_max):
         t1 = time.perf_counter()
         states, out = compiled(params, states, inputs)
         outs.append(_keep(out, cfg.trace_robots))
         done = np.asarray(states.done)
         run_s += time.perf_counter() - t1  # the outputs' copy to the host included
-        bar.update(int((np.asarray(states.outcome) != cl.PENDING).sum()) - bar.n)
+        if progress is not None:
+            progress(int((np.asarray(states.outcome) != cl.PENDING).sum()), total)
         if done.all():
             break
-    bar.close()
     trace = jax.tree.map(lambda *x: np.concatenate(x), *outs)
     return NavResult(
         config=cfg, occ=occ, world=world, starts=starts, goals=np.asarray(pool)[goal_ids],
