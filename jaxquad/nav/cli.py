@@ -75,14 +75,16 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"{option} must be >= 1, got {value}")
     if args.chunk_ticks % REPLAN_TICKS:
         raise ValueError(f"--chunk-ticks must be a multiple of {REPLAN_TICKS}, got {args.chunk_ticks}")
-    if args.max_seconds is not None and not args.max_seconds > 0:
-        raise ValueError(f"--max-seconds must be positive, got {args.max_seconds}")
+    for option, value in (("--max-seconds", args.max_seconds), ("--map-walk-seconds", args.map_walk_seconds)):
+        if value is not None and not value > 0:
+            raise ValueError(f"{option} must be positive, got {value}")
     check_output_dir(args.out, kind=SUMMARY_KIND)
     cfg = NavConfig(
         robot=args.robot, world=args.world, n_robots=args.robots, n_goals=args.goals, variant=args.variant,
         map=args.map, style=args.style, seed=args.seed, particles=args.particles, amcl_params=args.amcl_params,
         samples=args.samples, horizon=args.horizon, band_height=args.band_height, chunk_ticks=args.chunk_ticks,
-        odometry=args.odometry, scans=args.scans, max_seconds=args.max_seconds, trace_robots=max(args.plot_robots, 1),
+        odometry=args.odometry, scans=args.scans, max_seconds=args.max_seconds, map_walk_seconds=args.map_walk_seconds,
+        trace_robots=max(args.plot_robots, 1),
     )  # fmt: skip
     with progress_bar("navigate", "goal") as progress:
         result = navigate(cfg, progress=progress)

@@ -46,6 +46,7 @@ class NavConfig:
     n_goals: int = 5
     variant: str = "full"  # or "baseline"; `odometry` / `scans` override its parts
     map: str = "truth"  # a key of missions.MAP_SOURCES
+    map_walk_seconds: float | None = None  # map="slam": the mapping walk's length (None: one lap of its loop)
     style: str = "aggressive"  # gait style of the robots (calm or aggressive)
     seed: int = 0  # world, starts, goals, robot variation and noise
     particles: int | None = None  # AMCL particles per robot (None: max_particles of the AMCL file, 2000)

@@ -2,13 +2,13 @@
 on, a pool of reachable goal poses, start poses, each robot's goal sequence, and its footprint.
 
 Maps come from `MAP_SOURCES` (name -> function of the run's `NavConfig` and its world -> an
-`OccupancyMap` in the world frame); "truth" is the world's ground-truth map. A map built by the
-variant's SLAM on a route-following walk of the same world (`jaxquad.sim.rollout` with the run's
-robot, world, style and seed) is another entry of the same signature.
+`OccupancyMap` in the world frame, on the cells of the world's true map): "truth" is the world's
+ground-truth map, "slam" the map the variant's SLAM builds on a route-following walk of the world.
 
-Poses (starts and goals) are drawn on cells that are free in the navigation map, reachable by the
-planner from one another (its largest connected open region) and at least `clearance` from every
-box of the true world, with a uniform heading. Consecutive goals of a robot (and its first goal and
+Poses (starts and goals) are drawn on cells that are free in the navigation map (known, below the
+map format's free threshold of 0.196), reachable by the planner from one another (its largest
+connected open region) and at least `clearance` from every box and the outer walls of the true
+world, with a uniform heading. Consecutive goals of a robot (and its first goal and
 its start) are at least `min_separation` apart.
 """
 
@@ -21,6 +21,8 @@ import numpy as np
 from jaxquad.io.maps import OccupancyMap
 from jaxquad.sim.worlds import World, box_signed_distance, occupancy_map
 
+FREE_BELOW = 20  # occupancy (0..100) below which a known cell is free: the map format's free_thresh 0.196
+
 
 def truth_map(cfg, world: World) -> OccupancyMap:
     """The world's ground-truth occupancy map (0.05 m cells)."""
@@ -28,8 +30,50 @@ def truth_map(cfg, world: World) -> OccupancyMap:
     return occupancy_map(world)
 
 
+def slam_map(cfg, world: World) -> OccupancyMap:
+    """The map the run's variant builds with the online SLAM (`jaxquad.slam`) on a route-following walk of
+    the world, as the paper's authors mapped by teleoperation: one robot of the run's kind and gait
+    (`jaxquad.sim.rollout`, same seed: same world) walks `cfg.map_walk_seconds` (default: one lap of its
+    loop at 60 % of the route speed) from a waypoint of the loop; the estimator gives the leg-inertial
+    odometry and the variant's scans (stabilized or fixed rows); the SLAM adds leg-odometry constraints
+    (`preintegrated`) with leg odometry, none (`off`) otherwise. The odometry starts at the walk's true
+    first pose, so the map lies in the world frame; it is copied onto the true map's cells (unknown
+    where the SLAM map has none)."""
+    from jaxquad.estimate.laser import laser_inputs
+    from jaxquad.kernels.occupancy import OccupancyGrid
+    from jaxquad.sim import FleetConfig, rollout
+    from jaxquad.sim.routes import plan_loop
+    from jaxquad.slam import load_params, map_grid, run_fleet, slam_config, to_occupancy_map
+
+    loop = cfg.loop_config()
+    seconds = cfg.map_walk_seconds
+    if seconds is None:
+        waypoints = plan_loop(world)
+        length = float(np.sum(np.linalg.norm(np.roll(waypoints, -1, 0) - waypoints, axis=1)))
+        seconds = length / (0.6 * (0.4 if cfg.style == "calm" else 0.8))  # the fleet's route speeds
+    walk = FleetConfig(robot=cfg.robot, world=cfg.world, n_robots=1, style=cfg.style, seed=cfg.seed)
+    log = rollout(walk, seconds, progress=False)
+    values = load_params()
+    x = laser_inputs(log, loop.scans, cfg.contacts, loop.band_height, 0.2, values["max_laser_range"], None,
+                     values["leg_yaw_rate_std"])  # fmt: skip
+    grid = map_grid(x, values["resolution"], values["max_laser_range"])
+    spec, params = slam_config(values, grid, "preintegrated" if loop.odometry == "leg" else "off", x["T_base_laser"])
+    state, _, _ = run_fleet(spec, params, x)
+    built = to_occupancy_map(spec.grid, OccupancyGrid(state.grid.log_odds[0], state.grid.observed[0]))
+    return resample_map(built, occupancy_map(world))
+
+
+def resample_map(source: OccupancyMap, like: OccupancyMap) -> OccupancyMap:
+    """`source`'s values at the cell centres of `like` (its geometry, yaw 0), -1 outside `source`."""
+    rc = source.world_to_cell(like.cell_centers())
+    rows, cols = source.grid.shape
+    inside = (rc[..., 0] >= 0) & (rc[..., 0] < rows) & (rc[..., 1] >= 0) & (rc[..., 1] < cols)
+    grid = np.where(inside, source.grid[np.clip(rc[..., 0], 0, rows - 1), np.clip(rc[..., 1], 0, cols - 1)], -1)
+    return OccupancyMap(grid.astype(np.int8), like.resolution, like.origin)
+
+
 # name -> (NavConfig, World) -> OccupancyMap in the world frame
-MAP_SOURCES: dict[str, Callable[[object, World], OccupancyMap]] = {"truth": truth_map}
+MAP_SOURCES: dict[str, Callable[[object, World], OccupancyMap]] = {"truth": truth_map, "slam": slam_map}
 
 
 def reachable_cells(weight: np.ndarray) -> np.ndarray:
@@ -48,8 +92,12 @@ def draw_poses(
 ) -> np.ndarray:
     """(count, 3) poses x, y (m), yaw (rad) on open cells, `clearance` (m) from every box of the world."""
     centers = occ.cell_centers()
-    ok = open_cells & (occ.grid == 0)
+    ok = open_cells & (occ.grid >= 0) & (occ.grid < FREE_BELOW)
     ok &= box_signed_distance(world, centers) >= clearance
+    # Inside the outer walls too (a map built from scans may show free space leaking through them).
+    xmin, ymin, xmax, ymax = world.bounds
+    ok &= (centers[..., 0] > xmin + clearance) & (centers[..., 0] < xmax - clearance)
+    ok &= (centers[..., 1] > ymin + clearance) & (centers[..., 1] < ymax - clearance)
     rc = np.argwhere(ok)
     if rc.shape[0] == 0:
         raise ValueError(f"no free cell of the {world.kind} map has {clearance} m clearance")

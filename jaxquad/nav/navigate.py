@@ -2,10 +2,11 @@
 
 `plan` is the global planner (cost-to-go from the goal, descent from the robot); `step` is one control
 tick of MPPI along the current plan. On a static map, `goal_table` computes the cost-to-go of a set of
-goals once and `plan_to` replans by descent alone (what a fleet navigating a known map calls). Both are pure with static shapes, so a fleet calls them per robot
-under `vmap` from inside its `lax.scan`. Replanning is a separate call on purpose: under `vmap` a
-`lax.cond` runs both branches, so a fleet loop replans in an outer scan (every `replan_ticks` ticks)
-around an inner scan of control ticks, as `simulate_kinematic` does with the ideal kinematic model.
+goals once and `plan_to` replans by descent alone (what a fleet navigating a known map calls). Both are
+pure with static shapes, so a fleet calls them per robot under `vmap` from inside its `lax.scan`.
+Replanning is a separate call on purpose: under `vmap` a `lax.cond` runs both branches, so a fleet loop
+replans in an outer scan (every `replan_ticks` ticks) around an inner scan of control ticks, as
+`simulate_kinematic` does with the ideal kinematic model.
 """
 
 from __future__ import annotations
