@@ -11,7 +11,7 @@ odometry + stabilized scans).
 
     python experiments/navigation.py [--robot go2 --robot badger] [--world house --world warehouse]
         [--robots 2] [--goals 2] [--worlds 1] [--seed 0] [--style aggressive] [--samples 256]
-        [--horizon 30] [--particles 500] [--ablation] [--out DIR] [--json rows.json]
+        [--horizon 30] [--particles 500] [--max-seconds S] [--ablation] [--out DIR] [--json rows.json]
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ def run_cell(args, robot: str, world: str, label: str) -> dict:
         cfg = NavConfig(
             robot=robot, world=world, n_robots=args.robots, n_goals=args.goals, variant=variant, odometry=odometry,
             scans=scans, style=args.style, seed=seed, particles=args.particles, samples=args.samples,
-            horizon=args.horizon, trace_robots=8,
+            horizon=args.horizon, max_seconds=args.max_seconds, trace_robots=8,
         )  # fmt: skip
         t0 = time.perf_counter()
         result = navigate(cfg, progress=None)
@@ -88,6 +88,8 @@ def main() -> int:
     p.add_argument("--samples", type=int, default=256, help="MPPI samples (default 256; the library's 1000)")
     p.add_argument("--horizon", type=int, default=30, help="MPPI horizon in ticks (default 30; the library's 40)")
     p.add_argument("--particles", type=int, default=500, help="AMCL particles (default 500; the library's 2000)")
+    p.add_argument("--max-seconds", type=float, default=None,
+                   help="cap on each run's simulated time, s; goals still running count as failures (default: none)")
     p.add_argument("--ablation", action="store_true", help="add the B+LO and B+SS rows")
     p.add_argument("--out", default=None, help="folder for each run's summary.json and paths.png")
     p.add_argument("--json", default=None, help="write the rows as JSON here")
@@ -112,13 +114,13 @@ def main() -> int:
             + " |"
         )
     print("\n| robot | world | method | runs | reached | missed | collided | lost | timeout | fallen | skipped "
-          "| time to goal s (median) | loc. error m (median / p99) | compile s | robot-s per s |")  # fmt: skip
-    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|")
+          "| pending | time to goal s (median) | loc. error m (median / p99) | compile s | robot-s per s |")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|")
     for x in rows:
         o = x["outcomes"]
         fmt = lambda v, d=3: "-" if v is None else f"{v:.{d}f}"  # noqa: E731
         print(f"| {x['robot']} | {x['world']} | {x['cell']} | {x['runs']} | {o['reached']} | {o['missed']} | "
-              f"{o['collided']} | {o['lost']} | {o['timeout']} | {o['fallen']} | {o['skipped']} | "
+              f"{o['collided']} | {o['lost']} | {o['timeout']} | {o['fallen']} | {o['skipped']} | {o['pending']} | "
               f"{fmt(x['time_to_goal_median_s'], 1)} | {fmt(x['loc_error_median_m'])} / {fmt(x['loc_error_p99_m'])} | "
               f"{x['compile_s']:.0f} | {fmt(x['robot_seconds_per_s'], 1)} |")  # fmt: skip
     if args.json:

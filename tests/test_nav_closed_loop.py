@@ -102,6 +102,19 @@ def test_missions_keep_clearance_and_separation():
     assert np.all(np.linalg.norm(np.diff(legs, axis=1), axis=-1) >= 1.5)
 
 
+def test_resample_map_copies_cells_by_position():
+    rng = np.random.default_rng(1)
+    source = OccupancyMap(rng.integers(-1, 101, (30, 40)).astype(np.int8), 0.05, (1.0, -0.5, 0.0))
+    like = OccupancyMap(np.zeros((50, 30), np.int8), 0.05, (0.52, -0.13, 0.0))  # offset by 9.6 x 7.4 cells
+    got = missions.resample_map(source, like)
+    assert got.grid.shape == like.grid.shape and got.origin == like.origin
+    for r, c in [(0, 0), (10, 12), (25, 29), (49, 5), (37, 20)]:
+        x, y = 0.52 + (c + 0.5) * 0.05, -0.13 + (r + 0.5) * 0.05
+        i, j = int(np.floor((y + 0.5) / 0.05)), int(np.floor((x - 1.0) / 0.05))
+        expected = source.grid[i, j] if 0 <= i < 30 and 0 <= j < 40 else -1
+        assert got.grid[r, c] == expected, (r, c)
+
+
 def test_footprint_holds_trunk_and_feet():
     for name in ("go2", "badger"):
         robot = robots.load(name)
@@ -148,3 +161,19 @@ def test_closed_loop_reaches_goals_and_flags_collisions(run, tmp_path):
     assert json.loads(to_json(summary))["localization_error_m"]["n"] > 0  # strict JSON
     plot_paths(run, tmp_path / "paths.png")
     assert (tmp_path / "paths.png").stat().st_size > 10_000
+
+
+@pytest.mark.slow
+def test_slam_map_lies_on_the_world():
+    """A short mapping walk: the SLAM map comes on the true map's cells, and what it marks occupied lies on
+    the world's boxes (map scores within one cell)."""
+    from jaxquad.metrics import map_scores
+    from jaxquad.nav.fleet import NavConfig
+
+    cfg = NavConfig(map="slam", map_walk_seconds=6.0, style="calm", seed=4)
+    world = make_world("house", 4000)
+    occ = missions.slam_map(cfg, world)
+    truth = occupancy_map(world)
+    assert occ.grid.shape == truth.grid.shape and occ.origin == truth.origin
+    scores = map_scores(occ, truth)
+    assert scores.n_estimated_occupied > 50 and scores.precision > 0.6
