@@ -31,12 +31,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scans", default=None, choices=["stabilized", "baseline"],
                         help="override the variant's scans (stabilized with --variant baseline: B+SS; default: "
                              "the variant's)")  # fmt: skip
-    parser.add_argument(
-        "--map",
-        default="truth",
-        choices=sorted(MAP_SOURCES),
-        help="the map navigated on: truth = the world's true occupancy map (default truth)",
-    )
+    parser.add_argument("--map", default="truth", choices=sorted(MAP_SOURCES),
+                        help="the map navigated on: truth = the world's true occupancy map; slam = the map the "
+                             "variant's SLAM builds on a route-following walk first (default truth)")  # fmt: skip
+    parser.add_argument("--map-walk-seconds", type=float, default=None,
+                        help="--map slam: length of the mapping walk, s (default: one lap of the route loop)")
     parser.add_argument("--seed", type=int, default=0, help="world, starts, goals, robot variation, noise (default 0)")
     parser.add_argument("--out", required=True, help="output folder (replaced whole when the run succeeds)")
     parser.add_argument(
