@@ -17,6 +17,7 @@ _COMMANDS: dict[str, tuple[str, str]] = {
     "tune": ("jaxquad.estimate.tune.cli", "tune the contact observer's gains and thresholds on a fleet log (grid search or gradient)"),
     "convert": ("jaxquad.ros.convert_cli", "a robot log (.npz) from a ROS 1 or ROS 2 bag and a topics file"),
     "export": ("jaxquad.ros.export_cli", "estimation, odometry, SLAM results (TUM, scans, maps) as a ROS bag for RViz/Foxglove"),
+    "navigate": ("jaxquad.nav.cli", "closed-loop navigation of a simulated fleet to random goals (JSON summary, paths)"),
     "localize": ("jaxquad.localize.cli", "AMCL localization of a log's robots on a saved map (TUM, npz, JSON summary with errors)"),
     "slam": ("jaxquad.slam.cli", "online 2D graph SLAM with leg-odometry constraints over a robot or laser log (TUM, map, g2o)"),
     "posegraph": ("jaxquad.slam.posegraph_cli", "optimize a 2D g2o pose graph (sparse Levenberg-Marquardt)"),

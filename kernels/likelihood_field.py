@@ -17,7 +17,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
 __all__ = ["LikelihoodField", "distance_at", "likelihood_field", "sample_free_poses", "scan_likelihood"]
 
@@ -32,13 +32,20 @@ class LikelihoodField(eqx.Module):
     origin: Float[Array, "2"]  # world x y (m) of the lower-left corner of cell (0, 0)
     resolution: Float[Array, ""]  # m per cell
     max_dist: Float[Array, ""]  # m, the clip and the value off the map
-    free_xy: Float[Array, "F 2"]  # world x y (m) of every free cell centre
+    free_xy: Float[Array, "C 2"]  # world x y (m) of every free cell centre, first; padded to one row per cell
+    n_free: Int[Array, ""]  # free cells (rows of free_xy in use): the shape depends on the grid's alone
 
 
 def likelihood_field(
-    grid: np.ndarray, resolution: float, origin_xy: tuple[float, float], max_dist: float = 2.0
+    grid: np.ndarray, resolution: float, origin_xy: tuple[float, float], max_dist: float = 2.0, surfaces: bool = False
 ) -> LikelihoodField:
-    """Build the field of a grid (int, -1 unknown, 0..100 occupancy) with NumPy/scipy (not jittable)."""
+    """Build the field of a grid (int, -1 unknown, 0..100 occupancy) with NumPy/scipy (not jittable).
+
+    surfaces: measure distances to the occupied cells that border a non-occupied cell only. A map whose
+    obstacles are filled (a ground-truth map) otherwise reads 0 all through an obstacle, so a beam that
+    overshoots a surface into it scores better than one that falls as short: with noisy ranges the
+    likelihood's peak moves towards the obstacles the sensor faces. A map built from scans has only
+    surfaces occupied, and this changes nothing there."""
     from scipy.ndimage import distance_transform_edt
 
     grid = np.asarray(grid)
@@ -47,6 +54,9 @@ def likelihood_field(
     if not (np.isfinite(max_dist) and max_dist > 0):
         raise ValueError(f"likelihood max distance must be positive, got {max_dist}")
     occupied = grid > _OCCUPIED
+    if surfaces:
+        p = np.pad(occupied, 1, constant_values=False)
+        occupied = occupied & ~(p[:-2, 1:-1] & p[2:, 1:-1] & p[1:-1, :-2] & p[1:-1, 2:])
     if occupied.any():
         dist = distance_transform_edt(~occupied) * resolution
     else:
@@ -55,10 +65,12 @@ def likelihood_field(
     if not free.any():
         raise ValueError("occupancy grid has no free cell to place particles in")
     rows, cols = np.nonzero(free)
-    free_xy = np.stack([origin_xy[0] + (cols + 0.5) * resolution, origin_xy[1] + (rows + 0.5) * resolution], 1)
+    free_xy = np.zeros((grid.size, 2))
+    free_xy[: rows.size] = np.stack([origin_xy[0] + (cols + 0.5) * resolution, origin_xy[1] + (rows + 0.5) * resolution], 1)
     leaves = {"dist": np.minimum(dist, max_dist), "origin": origin_xy, "resolution": resolution, "max_dist": max_dist,
               "free_xy": free_xy}  # fmt: skip
-    return LikelihoodField(**{k: jnp.asarray(v, jnp.float32) for k, v in leaves.items()})
+    return LikelihoodField(**{k: jnp.asarray(v, jnp.float32) for k, v in leaves.items()},
+                           n_free=jnp.asarray(rows.size, jnp.int32))  # fmt: skip
 
 
 def distance_at(field: LikelihoodField, xy: Float[Array, "*N 2"]) -> Float[Array, "*N"]:
@@ -103,7 +115,7 @@ def scan_likelihood(
 def sample_free_poses(field: LikelihoodField, key: Array, n: int) -> Float[Array, "n 3"]:
     """n poses uniform over the free cells (uniform inside each cell) with uniform heading."""
     k_cell, k_jit, k_theta = jax.random.split(key, 3)
-    idx = jax.random.randint(k_cell, (n,), 0, field.free_xy.shape[0])
+    idx = jax.random.randint(k_cell, (n,), 0, field.n_free)
     xy = field.free_xy[idx] + field.resolution * jax.random.uniform(k_jit, (n, 2), minval=-0.5, maxval=0.5)
     theta = jax.random.uniform(k_theta, (n,), minval=-jnp.pi, maxval=jnp.pi)
     return jnp.concatenate([xy, theta[:, None]], -1)

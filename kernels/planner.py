@@ -81,36 +81,46 @@ def cost_to_go(
 
 
 def descend(
-    value: Float[Array, "H W"],
+    value: Float[Array, "*L H W"],
     weight: Float[Array, "H W"],
     start_rc: Int[Array, " 2"],
     n_points: int,
     stride: int = 1,
+    layer: Int[Array, ""] | None = None,
 ) -> tuple[Int[Array, "n_points 2"], Bool[Array, " n_points"], Bool[Array, ""]]:
     """Cells of the path from `start_rc` down the cost-to-go `value` to a source, every `stride`-th cell.
 
     Returns (cells (row, col), valid mask, complete): point i is the cell after i * stride steps, or the
     source once reached; the points after the first one on the source are not valid. `complete` is
     False when the start is unreachable or the source is more than (n_points - 1) * stride steps away.
+    With `layer`, `value` is a stack of cost-to-go grids (L, H, W) and layer `layer` is descended: only
+    the visited cells are read, so one stack serves many robots under `vmap` without a copy per robot.
+    Edge costs are formed at the visited cells only (as `edge_costs` would give them).
     """
-    edges = edge_costs(weight)
-    h, w = value.shape
+    h, w = weight.shape
     off = jnp.asarray(OFFSETS, jnp.int32)
+    step_len = jnp.asarray(_STEP, weight.dtype)
+    at = (lambda r, c: value[r, c]) if layer is None else (lambda r, c: value[layer, r, c])  # noqa: E731
 
     def step(rc, _):
-        here = value[rc[0], rc[1]]
-        nb = jnp.clip(rc + off, 0, jnp.array([h - 1, w - 1]))
-        total = value[nb[:, 0], nb[:, 1]] + edges[:, rc[0], rc[1]]
+        here = at(rc[0], rc[1])
+        raw = rc + off
+        inside = jnp.all((raw >= 0) & (raw < jnp.array([h, w])), axis=-1)
+        nb = jnp.clip(raw, 0, jnp.array([h - 1, w - 1]))
+        w_nb = jnp.where(inside, weight[nb[:, 0], nb[:, 1]], jnp.inf)
+        total = at(nb[:, 0], nb[:, 1]) + step_len * 0.5 * (weight[rc[0], rc[1]] + w_nb)
         k = jnp.argmin(total)
         move = (here > 0.0) & jnp.isfinite(total[k])
         return jnp.where(move, nb[k], rc), (rc, here > 0.0)
 
     steps = (n_points - 1) * stride + 1
-    _, (cells, away) = jax.lax.scan(step, jnp.asarray(start_rc, jnp.int32), None, length=steps)
+    start_rc = jnp.asarray(start_rc, jnp.int32)
+    _, (cells, away) = jax.lax.scan(step, start_rc, None, length=steps)
     n_away = jnp.sum(away)  # steps taken before the source was reached
     idx = jnp.arange(n_points) * stride
-    complete = (value[start_rc[0], start_rc[1]] < jnp.inf) & (n_away < steps)
-    valid = (idx < n_away + stride) & jnp.isfinite(value[start_rc[0], start_rc[1]])
+    v_start = at(start_rc[0], start_rc[1])
+    complete = (v_start < jnp.inf) & (n_away < steps)
+    valid = (idx < n_away + stride) & jnp.isfinite(v_start)
     return cells[idx], valid, complete
 
 

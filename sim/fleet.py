@@ -126,8 +126,11 @@ def _sensor_addr(m, sensor_type, site: int) -> int:
     raise ValueError(f"robot model needs a {sensor_type.name} sensor on its IMU site")
 
 
-def build_fleet(config: FleetConfig) -> Fleet:
-    """Load the robot, generate worlds and routes, draw per-robot variation (NumPy, seeded)."""
+def build_fleet(config: FleetConfig, compile_chunk: bool = True) -> Fleet:
+    """Load the robot, generate worlds and routes, draw per-robot variation (NumPy, seeded).
+
+    compile_chunk=False leaves out the open-loop chunk (no memory plan, no compile): only the pure
+    per-robot functions are attached, for callers that drive them in their own loop."""
     import mujoco
 
     from jaxquad import robots
@@ -217,7 +220,10 @@ def build_fleet(config: FleetConfig) -> Fleet:
     )
     gyro_adr = _sensor_addr(m, mujoco.mjtSensor.mjSENS_GYRO, robot.imu_site_id)
     acc_adr = _sensor_addr(m, mujoco.mjtSensor.mjSENS_ACCELEROMETER, robot.imu_site_id)
-    _bind(fleet, jnp.asarray(qpos0, jnp.float32), gyro_adr, acc_adr)
+    if compile_chunk:
+        _bind(fleet, jnp.asarray(qpos0, jnp.float32), gyro_adr, acc_adr)
+    else:
+        fleet.functions = make_functions(fleet, gyro_adr, acc_adr)
     return fleet
 
 

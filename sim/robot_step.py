@@ -61,10 +61,12 @@ class FleetFunctions(NamedTuple):
     """Pure single-robot functions of a fleet (vmap them with `Fleet.model_in_axes` for the model)."""
 
     init: Callable  # (model, setup, qpos0, key) -> RobotState
-    physics_step: Callable  # (model, setup, state) -> state: route follower, gait controller, mjx.step
+    physics_step: Callable  # (model, setup, state) -> state: route follower, then `drive`
     sample: Callable  # (model, setup, state) -> (state, per-sample sensor and ground-truth dict)
     frame: Callable  # (model, setup, state) -> (state, samples of one camera period [, depth image])
     chunk: Callable  # (model, setup, state, frames) -> (state, samples of `frames` camera periods)
+    drive: Callable  # (model, setup, state, cmd) -> state: gait controller on a body command, mjx.step, falls
+    camera: Callable  # (model, setup, state) -> (state, depth image (H, W) m): one depth frame now
 
 
 def make_functions(fleet, gyro_adr: int, acc_adr: int) -> FleetFunctions:
@@ -101,10 +103,15 @@ def make_functions(fleet, gyro_adr: int, acc_adr: int) -> FleetFunctions:
 
     def physics_step(model, setup: RobotSetup, s: RobotState) -> RobotState:
         d = s.data
-        quat = d.qpos[qa + 3 : qa + 7]
-        yaw = yaw_of(quat)
+        yaw = yaw_of(d.qpos[qa + 3 : qa + 7])
         pose = jnp.stack([d.qpos[qa], d.qpos[qa + 1], yaw])
         route, (cmd, _) = route_step(setup.route_params, s.route, setup.waypoints, pose)
+        new = drive(model, setup, s, cmd)
+        route = jax.tree_util.tree_map(lambda old, r: jnp.where(new.fallen, old, r), s.route, route)
+        return eqx.tree_at(lambda r: r.route, new, route)
+
+    def drive(model, setup: RobotSetup, s: RobotState, cmd: Float[Array, " 3"]) -> RobotState:
+        d = s.data
         g, tau = gait_step(gait, setup.gait_params, s.gait, d.qpos, d.qvel, cmd, s.t, dt)
         d_new = mjx.step(model, d.replace(ctrl=tau))
         w, x, y, _ = d_new.qpos[qa + 3 : qa + 7]
@@ -118,7 +125,7 @@ def make_functions(fleet, gyro_adr: int, acc_adr: int) -> FleetFunctions:
         return RobotState(
             data=jax.tree_util.tree_map(keep, d, d_new),
             gait=jax.tree_util.tree_map(keep, s.gait, g),
-            route=jax.tree_util.tree_map(keep, s.route, route),
+            route=s.route,
             imu=s.imu,
             key=s.key,
             t=s.t + dt,
@@ -162,13 +169,16 @@ def make_functions(fleet, gyro_adr: int, acc_adr: int) -> FleetFunctions:
         s, outs = jax.lax.scan(log_period, s, None, length=logs_per_frame)
         if not cfg.depth:
             return s, outs
+        s, depth = camera(model, setup, s)
+        return s, (outs, depth)
+
+    def camera(model, setup: RobotSetup, s: RobotState):
         d = s.data
         R_world_cam = d.cam_xmat[cam_id] @ jnp.asarray(_R_MJCAM_OPTICAL, jnp.float32)
         depth_true = cast_depth(d.cam_xpos[cam_id], R_world_cam, rays, setup.boxes)
         key, k_depth = jax.random.split(s.key)
         depth = S.depth_camera(setup.noise, k_depth, depth_true, rays)
-        s = eqx.tree_at(lambda r: r.key, s, key)
-        return s, (outs, depth)
+        return eqx.tree_at(lambda r: r.key, s, key), depth
 
     def chunk_one(model, setup: RobotSetup, s: RobotState, frames: int):
         s, outs = jax.lax.scan(lambda s, _: frame(model, setup, s), s, None, length=frames)
@@ -179,7 +189,7 @@ def make_functions(fleet, gyro_adr: int, acc_adr: int) -> FleetFunctions:
         outs = {k: (v if k == "depth" else v.reshape((-1,) + v.shape[2:])) for k, v in outs.items()}
         return s, outs
 
-    return FleetFunctions(init_one, physics_step, sample, frame, chunk_one)
+    return FleetFunctions(init_one, physics_step, sample, frame, chunk_one, drive, camera)
 
 
 

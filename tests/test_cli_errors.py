@@ -235,6 +235,19 @@ CASES = {
         ("slam {log_npz} --out {new} --band-height 0", ["--band-height"]),
         ("slam {log_npz} --out {new} --format gps", ["--format"]),
     ],
+    "navigate": [
+        ("navigate --out {afile}", ["afile", "not a folder"]),
+        ("navigate --out {afile}/sub", ["afile", "not a folder"]),
+        ("navigate --out {foreign}", ["foreign", "non-empty"]),
+        ("navigate --out {estout}", ["estout", "no earlier jaxquad navigate"]),
+        ("navigate --out {new} --robots 0", ["--robots"]),
+        ("navigate --out {new} --chunk-ticks 15", ["--chunk-ticks", "10"]),
+        ("navigate --out {new} --max-seconds -1", ["--max-seconds"]),
+        ("navigate --out {new} --amcl-params {badamcl_yaml}", ["badamcl.yaml", "sigma_hit"]),
+        ("navigate --out {new} --amcl-params {missing}", ["missing.npz"]),
+        ("navigate --out {new} --robot spot", ["spot"]),
+        ("navigate --out {new} --map slam2", ["--map"]),
+    ],
     "posegraph": [
         ("posegraph {binary} --out {new}.g2o", ["binary", "UTF-8"]),
         ("posegraph {empty_npz} --out {new}.g2o", ["empty.npz", "VERTEX_SE2"]),
@@ -293,7 +306,7 @@ def test_read_only_output_folder_fails_fast(f, tmp_path, capsys, monkeypatch):
         for template in ("estimate {log_npz} --out {ro}/out", "simulate --out {ro}/out", "demo --out {ro}/out",
                          "tune --log {log_npz} --method grid --out {ro}/p.yaml", "vo {log_npz} --out {ro}/out",
                          "eval {ref_tum} {ref_tum} --plot {ro}/p.png", "posegraph {graph_g2o} --out {ro}/o.g2o",
-                         "localize {log_npz} --map {map_yaml} --out {ro}/out --global",
+                         "localize {log_npz} --map {map_yaml} --out {ro}/out --global", "navigate --out {ro}/out",
                          "export {res_keys} --bag {ro}/bag", "slam {log_npz} --out {ro}/out",
                          "convert {text_bag} --topics {topics_yaml} --robot go2 --out {ro}/log.npz"):  # fmt: skip
             line = _fails([a.format(ro=ro, **f) for a in template.split()], capsys)

@@ -22,9 +22,11 @@ than `min_stance` feet or an invalid solve reuses the last good twist; a time ga
 `max_gap_s` is not integrated (pose held) and restarts the observer; a robot whose base tilts past
 `fall_tilt_rad`, or whose input `valid` goes False, is marked fallen from then on and its pose held.
 
-`estimate_robot` is the single-robot function (params a traced pytree, so it vmaps over parameter
-sets and differentiates w.r.t. observer numbers through soft contacts); `estimate_fleet` is it
-jitted and vmapped over robots, compiled once per robot model and configuration.
+`pipeline_init` / `pipeline_step` are one sample of one robot (`state, out = pipeline_step(..., state,
+sample)`), what a closed loop calls as its sensors arrive; `estimate_robot` scans them over a log (params a
+traced pytree, so it vmaps over parameter sets and differentiates w.r.t. observer numbers through soft
+contacts); `estimate_fleet` is it jitted and vmapped over robots, compiled once per robot model and
+configuration.
 """
 
 from __future__ import annotations
@@ -147,7 +149,9 @@ class Estimate(eqx.Module):
     flags: Flags
 
 
-class _Carry(eqx.Module):
+class PipelineState(eqx.Module):
+    """What the pipeline carries from one sample to the next (one robot)."""
+
     diff: dif.DifferentiatorState
     att: att.AttitudeState
     obs: object  # ObserverState, or None without the observer
@@ -160,6 +164,20 @@ class _Carry(eqx.Module):
     omega_last: Float[Array, "3"]
     fallen: Bool[Array, ""]
     floor: flr.FloorState
+
+
+class PipelineSample(eqx.Module):
+    """One sample of a robot's inputs (the rows of `RobotInputs` at one time)."""
+
+    dt: Float[Array, ""]  # s since the previous sample; 0 at the first
+    q: Float[Array, "nu"]
+    qd: Float[Array, "nu"]
+    tau: Float[Array, "nu"]
+    gyro: Float[Array, "3"]
+    acc: Float[Array, "3"]
+    quat_wxyz: Float[Array, "4"]
+    contact_weight: Float[Array, "F"]
+    valid: Bool[Array, ""]
 
 
 def observer_params_for_axes(params: ObserverParams, axes: str) -> ObserverParams:
@@ -189,176 +207,195 @@ def _hold(ok, new, old):
     return jax.tree.map(lambda a, b: jnp.where(ok, a, b), new, old)
 
 
-def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs: RobotInputs) -> Estimate:
-    """Run the pipeline over one robot's inputs (pure; jit and vmap at the call site)."""
-    observer = config.contacts in ("observer", "mixed")
-    n_feet = len(robot.foot_names)
-    R_imu = jnp.asarray(R_base_imu(robot), dtype=inputs.gyro.dtype)
+def _observer_rows(robot, config: PipelineConfig) -> np.ndarray:
+    return np.arange(robot.nv) if config.observer_rows == "full" else np.asarray(robot.dof_adr)
 
-    q0 = jnp.where(jnp.isfinite(inputs.q[0]), inputs.q[0], jnp.asarray(robot.q_home, inputs.q.dtype))
+
+def pipeline_init(
+    robot, config: PipelineConfig, params: PipelineParams, first: PipelineSample,
+    p0_world_base: Float[Array, "3"], yaw0: Float[Array, ""],
+) -> PipelineState:  # fmt: skip
+    """The state before the first sample `first` (which `pipeline_step` then processes with dt = 0):
+    joints and attitude from it, position `p0_world_base` (m) and, without an attitude input, heading
+    `yaw0` (rad)."""
+    n_feet = len(robot.foot_names)
+    R_imu = jnp.asarray(R_base_imu(robot), dtype=first.gyro.dtype)
+    q0 = jnp.where(jnp.isfinite(first.q), first.q, jnp.asarray(robot.q_home, first.q.dtype))
     if config.has_attitude:
-        qa0 = inputs.quat_wxyz[0]
+        qa0 = first.quat_wxyz
         quat0 = jnp.where(jnp.all(jnp.isfinite(qa0)), qa0, jnp.array([1.0, 0.0, 0.0, 0.0]))
     else:
-        quat0 = att.attitude_from_acc(R_imu @ inputs.acc[0])
-        quat0 = (SO3.from_z_radians(inputs.yaw0) @ SO3(quat0)).wxyz
+        quat0 = att.attitude_from_acc(R_imu @ first.acc)
+        quat0 = (SO3.from_z_radians(yaw0) @ SO3(quat0)).wxyz
     quat0 = quat0 / jnp.linalg.norm(quat0)
-    pose0 = Pose(p_world_base=inputs.p0_world_base, q_world_base=quat0)
-
-    if observer:
-        rows = np.arange(robot.nv) if config.observer_rows == "full" else np.asarray(robot.dof_adr)
+    if config.contacts in ("observer", "mixed"):
         obs_params = observer_params_for_axes(params.observer, config.observer_axes)
         n_force = n_feet * (3 if config.observer_axes == "xyz" else 1)
-        obs0 = ContactObserver().init(obs_params, jnp.zeros(rows.size, inputs.q.dtype), n_force)
+        obs0 = ContactObserver().init(obs_params, jnp.zeros(_observer_rows(robot, config).size, first.q.dtype), n_force)
     else:
         obs0 = None
-    zeros3 = jnp.zeros(3, inputs.gyro.dtype)
-    carry0 = _Carry(
+    zeros3 = jnp.zeros(3, first.gyro.dtype)
+    return PipelineState(
         diff=dif.init(q0),
         att=att.init(quat0),
         obs=obs0,
-        pose=pose0,
+        pose=Pose(p_world_base=p0_world_base, q_world_base=quat0),
         q_last=q0,
         qd_last=jnp.zeros_like(q0),
         gyro_last=zeros3,
-        weight_last=jnp.zeros(n_feet, inputs.gyro.dtype),
+        weight_last=jnp.zeros(n_feet, first.gyro.dtype),
         v_last=zeros3,
         omega_last=zeros3,
         fallen=jnp.asarray(False),
-        floor=flr.floor_init(inputs.p0_world_base[2]),
+        floor=flr.floor_init(p0_world_base[2]),
     )
 
-    def step(c: _Carry, x):
-        dt, q, qd_in, tau, gyro_imu, acc_imu, quat_in, w_in, valid_in = x
-        first, gap = gaps(dt, params.max_gap_s)  # sample 0: nothing to integrate
-        dt_int = jnp.where(first | gap, 0.0, dt)
 
-        # 1. joints: hold non-finite readings.
-        q_ok = jnp.isfinite(q)
-        q_use = jnp.where(q_ok, q, c.q_last)
-        if config.has_qd:
-            qd_ok = jnp.isfinite(qd_in)
-            qd_use = jnp.where(qd_ok, qd_in, c.qd_last)
-            diff_state = c.diff
-            bad_joints = ~jnp.all(q_ok & qd_ok)
-        else:
-            diff_state, _ = dif.step(params.differentiator, c.diff, q, jnp.where(gap, 0.0, dt))
-            qd_use = diff_state.qd
-            bad_joints = ~jnp.all(q_ok)
+def pipeline_step(
+    robot, config: PipelineConfig, params: PipelineParams, c: PipelineState, x: PipelineSample
+) -> tuple[PipelineState, Estimate]:
+    """One sample (steps 1-6 of the module doc); the Estimate's leaves have no time axis."""
+    observer = config.contacts in ("observer", "mixed")
+    n_feet = len(robot.foot_names)
+    R_imu = jnp.asarray(R_base_imu(robot), dtype=x.gyro.dtype)
+    rows = _observer_rows(robot, config)
+    obs_params = observer_params_for_axes(params.observer, config.observer_axes)
+    dt, q, qd_in, tau, gyro_imu, acc_imu = x.dt, x.q, x.qd, x.tau, x.gyro, x.acc
+    quat_in, w_in, valid_in = x.quat_wxyz, x.contact_weight, x.valid
+    first, gap = gaps(dt, params.max_gap_s)  # sample 0: nothing to integrate
+    dt_int = jnp.where(first | gap, 0.0, dt)
 
-        # 2. attitude.
-        gyro_ok = jnp.all(jnp.isfinite(gyro_imu))
-        gyro = jnp.where(gyro_ok, R_imu @ jnp.where(gyro_ok, gyro_imu, 0.0), c.gyro_last)
-        acc = R_imu @ acc_imu
-        if config.has_attitude:
-            qa_ok = jnp.all(jnp.isfinite(quat_in)) & (jnp.abs(jnp.sum(quat_in**2) - 1.0) < 0.1)
-            quat = jnp.where(qa_ok, quat_in, c.pose.q_world_base)
-            att_state = c.att
-            bad_imu = ~(qa_ok & gyro_ok)
-        else:
-            att_state, used = att.step(params.attitude, c.att, gyro, acc, dt_int)
-            quat = att_state.q_world_base
-            bad_imu = ~(used[0] | first) | ~jnp.all(jnp.isfinite(acc_imu))
-        quat = quat / jnp.linalg.norm(quat)
-        R_world_base = rotation_matrix(quat)
-        fallen = c.fallen | ~valid_in | (R_world_base[2, 2] < jnp.cos(params.fall_tilt_rad))
+    # 1. joints: hold non-finite readings.
+    q_ok = jnp.isfinite(q)
+    q_use = jnp.where(q_ok, q, c.q_last)
+    if config.has_qd:
+        qd_ok = jnp.isfinite(qd_in)
+        qd_use = jnp.where(qd_ok, qd_in, c.qd_last)
+        diff_state = c.diff
+        bad_joints = ~jnp.all(q_ok & qd_ok)
+    else:
+        diff_state, _ = dif.step(params.differentiator, c.diff, q, jnp.where(gap, 0.0, dt))
+        qd_use = diff_state.qd
+        bad_joints = ~jnp.all(q_ok)
 
-        # 3. contacts.
-        tau_ok = torque_ok(robot, tau, params.torque_saturation)
-        # Full state for the model: base velocity from the last twist (world linear, body angular).
-        qpos, qvel = full_state(robot, c.pose.p_world_base, quat, q_use, R_world_base @ c.v_last, gyro, qd_use)
-        if observer:
-            tau_obs = jnp.where(tau_ok, tau, 0.0)
-            p_mom, tau_bar, J_z = dynamics.momentum_terms(
-                robot, qpos, qvel, tau_obs, passive=config.observer_passive, axes=config.observer_axes
-            )
-            p_mom, tau_bar, J_z = p_mom[rows], tau_bar[rows], J_z[:, rows]
-            obs_prev = jax.tree.map(lambda a: a, c.obs)
-            # After a gap the momentum residual is meaningless: restart the estimate at p.
-            obs_prev = eqx.tree_at(lambda s: s.p_hat, obs_prev, jnp.where(gap | first, p_mom, obs_prev.p_hat))
-            obs_dt = jnp.where(tau_ok & ~gap & ~first, dt, jnp.nan)  # NaN dt: the step is rejected (held)
-            obs_state, est = ContactObserver().step(obs_params, obs_prev, p_mom, tau_bar, J_z, obs_dt)
-            est = vertical_estimate(est, config.observer_axes)
-            contact, contact_soft = est.contact, est.contact_soft
-            force_z, force_f = est.force_z, est.force_z_filtered
-            weight = contact_soft if config.soft_contacts else contact.astype(contact_soft.dtype)
-        else:
-            obs_state = None
-            w_ok = jnp.isfinite(w_in)
-            weight = jnp.where(w_ok, jnp.clip(w_in, 0.0, 1.0), c.weight_last)
-            contact, contact_soft = weight > 0.5, weight
-            force_z = force_f = jnp.zeros_like(weight)
+    # 2. attitude.
+    gyro_ok = jnp.all(jnp.isfinite(gyro_imu))
+    gyro = jnp.where(gyro_ok, R_imu @ jnp.where(gyro_ok, gyro_imu, 0.0), c.gyro_last)
+    acc = R_imu @ acc_imu
+    if config.has_attitude:
+        qa_ok = jnp.all(jnp.isfinite(quat_in)) & (jnp.abs(jnp.sum(quat_in**2) - 1.0) < 0.1)
+        quat = jnp.where(qa_ok, quat_in, c.pose.q_world_base)
+        att_state = c.att
+        bad_imu = ~(qa_ok & gyro_ok)
+    else:
+        att_state, used = att.step(params.attitude, c.att, gyro, acc, dt_int)
+        quat = att_state.q_world_base
+        bad_imu = ~(used[0] | first) | ~jnp.all(jnp.isfinite(acc_imu))
+    quat = quat / jnp.linalg.norm(quat)
+    R_world_base = rotation_matrix(quat)
+    fallen = c.fallen | ~valid_in | (R_world_base[2, 2] < jnp.cos(params.fall_tilt_rad))
 
-        # 4-5. kinematics and twist.
-        legs = dynamics.leg_kinematics(robot, qpos, qvel)
-        radius = jnp.asarray(robot.foot_radius if config.rolling else np.zeros(n_feet), qpos.dtype)
-        n_floor = R_world_base[2]  # the world's up axis in base axes: the normal of a level floor
-        p_foot, v_foot = rolling_contact(legs.p_base_foot, legs.v_base_foot, legs.omega_base_foot, radius, n_floor)
-        rob = robust_body_twist(
-            p_foot, v_foot, gyro, weight, params.imu_weight, params.min_stance, params.robust_scale, 0.5,
-            params.sigma_prior, params.prior_dof, n_iter=config.robust_iters if config.robust != "none" else 0,
-            loss="huber" if config.robust == "none" else config.robust,
-        )  # fmt: skip
-        tw = rob.twist
-        tw_ok = tw.valid & tw.linear_observed
-        v_base = jnp.where(tw_ok, tw.v_base, c.v_last)
-        omega = jnp.where(tw_ok, tw.omega_base, gyro)
-
-        # 6. pose: the previous sample's twist over dt; held once fallen.
-        moved = odometry_step(c.pose, c.v_last, c.omega_last, dt_int, quat)
-        if config.floor:
-            h, n_h = flr.stance_height(p_foot, R_world_base, weight)
-            dz = moved.p_world_base[2] - c.pose.p_world_base[2]
-            # Across a gap the pose is held, the floor update too.
-            floor_state = flr.floor_step(params.floor, c.floor, dz, dt_int, h, jnp.where(gap, 0.0, n_h))
-            moved = Pose(p_world_base=moved.p_world_base.at[2].set(floor_state.z), q_world_base=moved.q_world_base)
-        else:
-            floor_state = c.floor
-        pose = _hold(~fallen, moved, c.pose)
-
-        new = _Carry(
-            diff=diff_state,
-            att=att_state,
-            obs=obs_state,
-            pose=pose,
-            q_last=q_use,
-            qd_last=qd_use,
-            gyro_last=gyro,
-            weight_last=weight,
-            v_last=jnp.where(fallen, 0.0, v_base),
-            omega_last=jnp.where(fallen, 0.0, omega),
-            fallen=fallen,
-            floor=_hold(~fallen, floor_state, c.floor),
+    # 3. contacts.
+    tau_ok = torque_ok(robot, tau, params.torque_saturation)
+    # Full state for the model: base velocity from the last twist (world linear, body angular).
+    qpos, qvel = full_state(robot, c.pose.p_world_base, quat, q_use, R_world_base @ c.v_last, gyro, qd_use)
+    if observer:
+        tau_obs = jnp.where(tau_ok, tau, 0.0)
+        p_mom, tau_bar, J_z = dynamics.momentum_terms(
+            robot, qpos, qvel, tau_obs, passive=config.observer_passive, axes=config.observer_axes
         )
-        flags = Flags(
-            bad_joints=bad_joints,
-            bad_imu=bad_imu,
-            bad_torque=~tau_ok if observer else jnp.asarray(False),
-            gap=gap,
-            no_stance=~tw_ok,
-            fallen=fallen,
-        )
-        out = Estimate(
-            p_world_base=pose.p_world_base,
-            q_world_base=pose.q_world_base,
-            v_base=v_base,
-            omega_base=omega,
-            contact=contact,
-            contact_soft=contact_soft,
-            force_z=force_z,
-            force_z_filtered=force_f,
-            qd=qd_use,
-            cov_v_base=tw.cov_v_base,
-            slip=rob.slip,
-            flags=flags,
-        )
-        return new, out
+        p_mom, tau_bar, J_z = p_mom[rows], tau_bar[rows], J_z[:, rows]
+        obs_prev = jax.tree.map(lambda a: a, c.obs)
+        # After a gap the momentum residual is meaningless: restart the estimate at p.
+        obs_prev = eqx.tree_at(lambda s: s.p_hat, obs_prev, jnp.where(gap | first, p_mom, obs_prev.p_hat))
+        obs_dt = jnp.where(tau_ok & ~gap & ~first, dt, jnp.nan)  # NaN dt: the step is rejected (held)
+        obs_state, est = ContactObserver().step(obs_params, obs_prev, p_mom, tau_bar, J_z, obs_dt)
+        est = vertical_estimate(est, config.observer_axes)
+        contact, contact_soft = est.contact, est.contact_soft
+        force_z, force_f = est.force_z, est.force_z_filtered
+        weight = contact_soft if config.soft_contacts else contact.astype(contact_soft.dtype)
+    else:
+        obs_state = None
+        w_ok = jnp.isfinite(w_in)
+        weight = jnp.where(w_ok, jnp.clip(w_in, 0.0, 1.0), c.weight_last)
+        contact, contact_soft = weight > 0.5, weight
+        force_z = force_f = jnp.zeros_like(weight)
 
-    xs = (
-        inputs.dt, inputs.q, inputs.qd, inputs.tau, inputs.gyro, inputs.acc,
-        inputs.quat_wxyz, inputs.contact_weight, inputs.valid,
+    # 4-5. kinematics and twist.
+    legs = dynamics.leg_kinematics(robot, qpos, qvel)
+    radius = jnp.asarray(robot.foot_radius if config.rolling else np.zeros(n_feet), qpos.dtype)
+    n_floor = R_world_base[2]  # the world's up axis in base axes: the normal of a level floor
+    p_foot, v_foot = rolling_contact(legs.p_base_foot, legs.v_base_foot, legs.omega_base_foot, radius, n_floor)
+    rob = robust_body_twist(
+        p_foot, v_foot, gyro, weight, params.imu_weight, params.min_stance, params.robust_scale, 0.5,
+        params.sigma_prior, params.prior_dof, n_iter=config.robust_iters if config.robust != "none" else 0,
+        loss="huber" if config.robust == "none" else config.robust,
     )  # fmt: skip
-    _, out = jax.lax.scan(step, carry0, xs)
+    tw = rob.twist
+    tw_ok = tw.valid & tw.linear_observed
+    v_base = jnp.where(tw_ok, tw.v_base, c.v_last)
+    omega = jnp.where(tw_ok, tw.omega_base, gyro)
+
+    # 6. pose: the previous sample's twist over dt; held once fallen.
+    moved = odometry_step(c.pose, c.v_last, c.omega_last, dt_int, quat)
+    if config.floor:
+        h, n_h = flr.stance_height(p_foot, R_world_base, weight)
+        dz = moved.p_world_base[2] - c.pose.p_world_base[2]
+        # Across a gap the pose is held, the floor update too.
+        floor_state = flr.floor_step(params.floor, c.floor, dz, dt_int, h, jnp.where(gap, 0.0, n_h))
+        moved = Pose(p_world_base=moved.p_world_base.at[2].set(floor_state.z), q_world_base=moved.q_world_base)
+    else:
+        floor_state = c.floor
+    pose = _hold(~fallen, moved, c.pose)
+
+    new = PipelineState(
+        diff=diff_state,
+        att=att_state,
+        obs=obs_state,
+        pose=pose,
+        q_last=q_use,
+        qd_last=qd_use,
+        gyro_last=gyro,
+        weight_last=weight,
+        v_last=jnp.where(fallen, 0.0, v_base),
+        omega_last=jnp.where(fallen, 0.0, omega),
+        fallen=fallen,
+        floor=_hold(~fallen, floor_state, c.floor),
+    )
+    flags = Flags(
+        bad_joints=bad_joints,
+        bad_imu=bad_imu,
+        bad_torque=~tau_ok if observer else jnp.asarray(False),
+        gap=gap,
+        no_stance=~tw_ok,
+        fallen=fallen,
+    )
+    out = Estimate(
+        p_world_base=pose.p_world_base,
+        q_world_base=pose.q_world_base,
+        v_base=v_base,
+        omega_base=omega,
+        contact=contact,
+        contact_soft=contact_soft,
+        force_z=force_z,
+        force_z_filtered=force_f,
+        qd=qd_use,
+        cov_v_base=tw.cov_v_base,
+        slip=rob.slip,
+        flags=flags,
+    )
+    return new, out
+
+
+def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs: RobotInputs) -> Estimate:
+    """Run the pipeline over one robot's inputs (pure; jit and vmap at the call site)."""
+    xs = PipelineSample(
+        dt=inputs.dt, q=inputs.q, qd=inputs.qd, tau=inputs.tau, gyro=inputs.gyro, acc=inputs.acc,
+        quat_wxyz=inputs.quat_wxyz, contact_weight=inputs.contact_weight, valid=inputs.valid,
+    )  # fmt: skip
+    first = jax.tree.map(lambda a: a[0], xs)
+    state = pipeline_init(robot, config, params, first, inputs.p0_world_base, inputs.yaw0)
+    _, out = jax.lax.scan(lambda c, x: pipeline_step(robot, config, params, c, x), state, xs)
     return out
 
 

@@ -42,11 +42,11 @@ def _run_chunk(params: AmclParams, field: LikelihoodField, states, inputs: AmclI
     return jax.vmap(one)(states, inputs)
 
 
-def field_of_map(occ, max_dist: float) -> LikelihoodField:
-    """The likelihood field of an `OccupancyMap` (whose yaw must be 0)."""
+def field_of_map(occ, max_dist: float, surfaces: bool = False) -> LikelihoodField:
+    """The likelihood field of an `OccupancyMap` (whose yaw must be 0); `surfaces`: see `likelihood_field`."""
     if abs(occ.origin[2]) > 1e-9:
         raise ValueError(f"map origin yaw must be 0 for localization, got {occ.origin[2]}")
-    return likelihood_field(occ.grid, occ.resolution, occ.origin[:2], max_dist)
+    return likelihood_field(occ.grid, occ.resolution, occ.origin[:2], max_dist, surfaces)
 
 
 def localize_scans(

@@ -3,14 +3,17 @@
 from jaxquad.nav import explore
 from jaxquad.nav.explore import ExploreParams, ExploreState
 from jaxquad.nav.navigate import (
+    GoalTable,
     NavInputs,
     NavParams,
     NavState,
     NavTrace,
     Plan,
     cost_grid,
+    goal_table,
     init,
     plan,
+    plan_to,
     replan,
     simulate_kinematic,
     step,
@@ -19,6 +22,7 @@ from jaxquad.nav.navigate import (
 __all__ = [
     "ExploreParams",
     "ExploreState",
+    "GoalTable",
     "NavInputs",
     "NavParams",
     "NavState",
@@ -26,8 +30,10 @@ __all__ = [
     "Plan",
     "cost_grid",
     "explore",
+    "goal_table",
     "init",
     "plan",
+    "plan_to",
     "replan",
     "simulate_kinematic",
     "step",

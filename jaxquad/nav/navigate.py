@@ -1,10 +1,12 @@
 """Point-to-point navigation for one robot: costmap, global plan, MPPI ticks.
 
 `plan` is the global planner (cost-to-go from the goal, descent from the robot); `step` is one control
-tick of MPPI along the current plan. Both are pure with static shapes, so a fleet calls them per robot
-under `vmap` from inside its `lax.scan`. Replanning is a separate call on purpose: under `vmap` a
-`lax.cond` runs both branches, so a fleet loop replans in an outer scan (every `replan_ticks` ticks)
-around an inner scan of control ticks, as `simulate_kinematic` does with the ideal kinematic model.
+tick of MPPI along the current plan. On a static map, `goal_table` computes the cost-to-go of a set of
+goals once and `plan_to` replans by descent alone (what a fleet navigating a known map calls). Both are
+pure with static shapes, so a fleet calls them per robot under `vmap` from inside its `lax.scan`.
+Replanning is a separate call on purpose: under `vmap` a `lax.cond` runs both branches, so a fleet loop
+replans in an outer scan (every `replan_ticks` ticks) around an inner scan of control ticks, as
+`simulate_kinematic` does with the ideal kinematic model.
 """
 
 from __future__ import annotations
@@ -83,6 +85,38 @@ def cost_grid(
     )
 
 
+class GoalTable(eqx.Module):
+    """Cost-to-go grids of K goals on one static map, computed once: a plan to goal k from anywhere is
+    then a descent (`plan_to`), with no relaxation per robot or per replan."""
+
+    goals: Float[Array, "K 3"]  # x, y (m), yaw (rad)
+    value: Float[Array, "K H W"]  # cost-to-go of each goal's cell (cells x weight); inf where unreachable
+    weight: Float[Array, "H W"]  # the planner's step weights of the map
+    goal_rc: Int[Array, "K 2"]  # the goal cell each grid leads to
+    goal_ok: Bool[Array, " K"]  # an open cell was found within goal_tolerance of the goal
+
+
+def _goal_value(params: NavParams, grid: CostGrid, weight, goal) -> tuple[Array, Array, Array]:
+    tol_cells = params.goal_tolerance / grid.resolution
+    goal_rc, goal_ok = nearest_open_cell(weight, grid.cell_of(goal[:2]), tol_cells)
+    source = jnp.zeros(weight.shape, bool).at[goal_rc[0], goal_rc[1]].set(goal_ok)
+    return cost_to_go(weight, source), goal_rc, goal_ok
+
+
+def _descent_plan(params: NavParams, grid: CostGrid, weight, value, goal_rc, goal_ok, pose, goal, layer=None) -> Plan:
+    tol_cells = params.goal_tolerance / grid.resolution
+    start_rc, start_ok = nearest_open_cell(weight, grid.cell_of(pose[:2]), tol_cells)
+    cells, valid, complete = descend(value, weight, start_rc, params.n_path_points, params.path_stride, layer)
+    ok = goal_ok & start_ok & complete
+    finite = jnp.all(jnp.isfinite(pose)) & jnp.all(jnp.isfinite(goal))
+    return Plan(
+        path=grid.center_of(cells),
+        valid=valid & finite,
+        ok=ok & finite,
+        goal_rc=goal_rc,
+    )
+
+
 def plan(
     params: NavParams,
     grid: CostGrid,
@@ -91,19 +125,22 @@ def plan(
 ) -> Plan:
     """Global path from the robot's cell to the goal's cell on the 8-connected weighted grid."""
     weight = step_weights(grid.cost, params.cost_weight)
-    tol_cells = params.goal_tolerance / grid.resolution
-    goal_rc, goal_ok = nearest_open_cell(weight, grid.cell_of(goal[:2]), tol_cells)
-    start_rc, start_ok = nearest_open_cell(weight, grid.cell_of(pose[:2]), tol_cells)
-    source = jnp.zeros(weight.shape, bool).at[goal_rc[0], goal_rc[1]].set(goal_ok)
-    value = cost_to_go(weight, source)
-    cells, valid, complete = descend(value, weight, start_rc, params.n_path_points, params.path_stride)
-    ok = goal_ok & start_ok & complete
-    finite = jnp.all(jnp.isfinite(pose)) & jnp.all(jnp.isfinite(goal))
-    return Plan(
-        path=grid.center_of(cells),
-        valid=valid & finite,
-        ok=ok & finite,
-        goal_rc=goal_rc,
+    value, goal_rc, goal_ok = _goal_value(params, grid, weight, goal)
+    return _descent_plan(params, grid, weight, value, goal_rc, goal_ok, pose, goal)
+
+
+def goal_table(params: NavParams, grid: CostGrid, goals: Float[Array, "K 3"]) -> GoalTable:
+    """The cost-to-go grids of `goals` on `grid` (K relaxations, vmapped)."""
+    weight = step_weights(grid.cost, params.cost_weight)
+    goals = jnp.asarray(goals, jnp.float32)
+    value, goal_rc, goal_ok = jax.vmap(lambda g: _goal_value(params, grid, weight, g))(goals)
+    return GoalTable(goals=goals, value=value, weight=weight, goal_rc=goal_rc, goal_ok=goal_ok)
+
+
+def plan_to(params: NavParams, grid: CostGrid, table: GoalTable, k: Int[Array, ""], pose: Float[Array, " 3"]) -> Plan:
+    """`plan(params, grid, pose, table.goals[k])` from the precomputed grid of goal k (same path)."""
+    return _descent_plan(
+        params, grid, table.weight, table.value, table.goal_rc[k], table.goal_ok[k], pose, table.goals[k], layer=k
     )
 
 
