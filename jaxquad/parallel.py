@@ -35,8 +35,9 @@ __all__ = ["BATCH", "gather", "initialize", "is_main", "mesh", "pad", "padded_si
 
 BATCH = "batch"  # the mesh's one axis name
 GATHER_PIECE_BYTES = 1 << 28  # a multi-process gather replicates pieces of at most this size on every device
+BARRIER_S = 3600.0  # how long processes wait for each other before a collective
 _ENV = ("JAXQUAD_COORDINATOR", "JAXQUAD_NUM_PROCESSES", "JAXQUAD_PROCESS_ID")
-_state = {"initialized": False}
+_state = {"initialized": False, "barriers": 0}
 
 
 def initialize() -> None:
@@ -98,10 +99,12 @@ def pad(tree, size: int, axes=0):
 
 
 def unpad(tree, n: int, axes=0):
-    """The first `n` elements of the batch axis of every batched leaf (drops `pad`'s copies)."""
-    return _axes_map(
-        lambda a, x: x if a is None or x.shape[a] == n else jax.lax.slice_in_dim(x, 0, n, axis=a), axes, tree
-    )
+    """The first `n` elements of the batch axis of every batched leaf (drops `pad`'s copies); with
+    several processes a collective (the slice moves data between devices)."""
+    cut = _axes_map(lambda a, x: a is not None and x.shape[a] != n, axes, tree)
+    if any(jax.tree.leaves(cut)):
+        _sync(tree)
+    return _axes_map(lambda a, x: x if a is None or x.shape[a] == n else jax.lax.slice_in_dim(x, 0, n, axis=a), axes, tree)
 
 
 def _spec(axis: int | None) -> P:
@@ -132,6 +135,19 @@ def shard_batched(fn, mesh: Mesh, in_axes, out_axes):
     return jax.shard_map(fn, mesh=mesh, in_specs=specs(tuple(in_axes)), out_specs=specs(out_axes), check_vma=False)
 
 
+def _sync(tree) -> None:
+    """With several processes: wait for `tree` and then for every process, before a collective.
+    CPU collectives (gloo) give up when processes arrive more than 30 s apart, which one process's
+    compile or chunk can outlast; the coordination service's barrier waits up to `BARRIER_S`."""
+    if jax.process_count() == 1:
+        return
+    from jax._src import distributed  # the barrier of the coordination service (no public wrapper)
+
+    jax.block_until_ready(tree)
+    _state["barriers"] += 1
+    distributed.global_state.client.wait_at_barrier(f"jaxquad_{_state['barriers']}", int(BARRIER_S * 1000))
+
+
 @functools.partial(jax.jit, static_argnums=2)
 def _piece(x, start, rows: int):
     return jax.lax.dynamic_slice_in_dim(x, start, rows)
@@ -144,6 +160,8 @@ def gather(tree):
     if jax.process_count() == 1:
         return jax.device_get(tree)
     from jax.experimental.multihost_utils import process_allgather
+
+    _sync(tree)
 
     def one(x):
         if not isinstance(x, jax.Array) or x.is_fully_addressable:

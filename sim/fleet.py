@@ -10,7 +10,10 @@ Time is split into chunks of `frames_per_chunk` camera periods. One chunk is a n
 `jax.vmap`, so depth is cast only on camera frames and device memory holds one chunk at a time.
 The chunk length is chosen from the device's free memory and the chunk's footprint as XLA reports
 it (`jaxquad.sim.memory`), or an explicit length is checked, before anything is allocated: a fleet
-that cannot fit raises one line naming the largest robot count that fits.
+that cannot fit raises one line naming the largest robot count that fits. The robots are split over
+`config.devices` devices (default all; `jaxquad.parallel`): each device runs the chunk on its own
+block of robots (padded to a multiple of the device count with copies of the last robot), and the
+memory plan is made per device.
 
 The per-robot functions (`Fleet.functions`: init, physics step, log sample, camera frame, chunk)
 are pure and single-robot; closed-loop work drives the same physics step with its own commands.
@@ -252,7 +255,7 @@ def _nbytes(tree) -> int:
     """Bytes of a pytree of arrays or shape structs (PRNG keys count as two uint32 words)."""
     total = 0
     for x in jax.tree.leaves(tree):
-        shape, dtype = np.shape(x), getattr(x, "dtype", np.asarray(x).dtype)
+        shape, dtype = np.shape(x), x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype
         itemsize = 8 if jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key) else np.dtype(dtype).itemsize
         total += int(np.prod(shape)) * itemsize
     return total

@@ -3,8 +3,8 @@ group (JAXQUAD_* variables) is set before JAX starts: `python _parallel_worker.p
 
 grid:  grid-search counts on 1 and on 2 devices (a grid size that is not a multiple of the chunk),
        and a vmapped function with time-major output split over 2 devices.
-fleet: a 3-robot fleet (padding to 4 on 2 devices) simulated, then estimated, on 1 and on 2 devices;
-       the 1-device log is also written to OUT.log.npz.
+fleet: a 3-robot fleet (padding to 4 on 2 devices) simulated on 1 and on 2 devices, and the 1-device
+       log estimated on 1 and on 2 devices; that log is also written to OUT.log.npz.
 multiprocess: one of two processes: the grid on the devices of both, and a time-major (T, N) array
        split over its robot axis gathered piece by piece; process 0 writes OUT.
 fleet_multiprocess LOG: one of two processes: the fleet of `fleet` simulated on both, and the log LOG
@@ -87,13 +87,13 @@ def fleet(out: str) -> None:
     from jaxquad.io import save_log
     from jaxquad.sim import rollout
 
-    res = {}
+    res, logs = {}, {}
     for d in (1, 2):
-        log = rollout(_fleet_config(d), 0.25, progress=False)
-        if d == 1:
-            save_log(out + ".log.npz", log)
-        res |= {f"d{d}_{k}": np.asarray(log[k]) for k in FLEET_KEYS}
-        res |= {f"d{d}_{k}": v for k, v in _estimate(log, d).items()}
+        logs[d] = rollout(_fleet_config(d), 0.25, progress=False)
+        res |= {f"d{d}_{k}": np.asarray(logs[d][k]) for k in FLEET_KEYS}
+    save_log(out + ".log.npz", logs[1])
+    for d in (1, 2):  # the same log on 1 and 2 devices
+        res |= {f"d{d}_{k}": v for k, v in _estimate(logs[1], d).items()}
     np.savez(out, **res)
 
 
