@@ -71,9 +71,13 @@ def main() -> None:
                         help="simulated fleet sizes, depth on (default: 8 on CPU, 16384 65536 131072 on GPU)")  # fmt: skip
     parser.add_argument("--sim-repeats", type=int, default=3, help="steady chunks timed per size (default 3)")
     parser.add_argument("--grid-log", default=None, help="fleet log to tune on (default: simulate one)")
-    parser.add_argument("--grid-robots", type=int, default=None, help="robots of the simulated log (default 4 CPU, 48 GPU)")
+    parser.add_argument(
+        "--grid-robots", type=int, default=None, help="robots of the simulated log (default 4 CPU, 48 GPU)"
+    )
     parser.add_argument("--grid-seconds", type=float, default=None, help="its length, s (default 2 CPU, 20 GPU)")
-    parser.add_argument("--grid-size", default=None, help="points per axis, N or N,N,N,N,N (default 3 CPU, 8,8,4,4,4 GPU)")
+    parser.add_argument(
+        "--grid-size", default=None, help="points per axis, N or N,N,N,N,N (default 3 CPU, 8,8,4,4,4 GPU)"
+    )
     parser.add_argument("--chunk", type=int, default=None, help="configurations per call (default 64 CPU, 4096 GPU)")
     parser.add_argument("--json", action="store_true", help="also print the rows as JSON")
     args = parser.parse_args()

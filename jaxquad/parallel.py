@@ -104,7 +104,9 @@ def unpad(tree, n: int, axes=0):
     cut = _axes_map(lambda a, x: a is not None and x.shape[a] != n, axes, tree)
     if any(jax.tree.leaves(cut)):
         _sync(tree)
-    return _axes_map(lambda a, x: x if a is None or x.shape[a] == n else jax.lax.slice_in_dim(x, 0, n, axis=a), axes, tree)
+    return _axes_map(
+        lambda a, x: x if a is None or x.shape[a] == n else jax.lax.slice_in_dim(x, 0, n, axis=a), axes, tree
+    )
 
 
 def _spec(axis: int | None) -> P:
