@@ -68,7 +68,7 @@ def main() -> None:
     parser.add_argument("--devices", type=int, nargs="+", default=None, help="device counts (default: 1 and all)")
     parser.add_argument("--robot", default="go2", help="robot (default go2)")
     parser.add_argument("--robots", type=int, nargs="+", default=None,
-                        help="simulated fleet sizes, depth on (default: 8 on CPU, 16384 65536 131072 on GPU)")  # fmt: skip
+                        help="fleet sizes, depth on (default: 8 on CPU, 16384 65536 131072 on GPU)")  # fmt: skip
     parser.add_argument("--sim-repeats", type=int, default=3, help="steady chunks timed per size (default 3)")
     parser.add_argument("--grid-log", default=None, help="fleet log to tune on (default: simulate one)")
     parser.add_argument(
