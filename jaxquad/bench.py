@@ -36,6 +36,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--batch", type=int, nargs="+", default=[1, 1024], metavar="N",
         help="vmapped batch sizes (default: 1 1024)",
     )
+    parser.add_argument(
+        "--devices", type=int, nargs="+", default=None, metavar="N",
+        help="device counts to run --sim on, one row each, in this run (default: all devices)",
+    )
     for name, (module, help_) in _SECTIONS.items():
         parser.add_argument(f"--{name}", action="store_true", help=help_)
         if importlib.util.find_spec(module) is not None:

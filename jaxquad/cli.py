@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib
+import os
 import sys
 from collections.abc import Callable, Iterator
 
@@ -48,6 +49,15 @@ def progress_bar(desc: str, unit: str) -> Iterator[Callable[[int, int], None]]:
             bar.close()
 
 
+def add_devices_argument(parser, what: str = "robots") -> None:
+    """The shared `--devices N` option of commands whose batch is split over devices (`jaxquad.parallel`)."""
+    parser.add_argument(
+        "--devices", type=int, default=None, metavar="N",
+        help=f"split the {what} over the first N devices (default: all devices this run sees; in a multi-process "
+        "run all devices of all processes); results equal one device's up to float rounding",
+    )  # fmt: skip
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse with the project's error rule: one line on stderr, exit status 1 (argparse uses 2)."""
 
@@ -69,6 +79,10 @@ def main(argv: list[str] | None = None) -> int:
             modules[name].add_arguments(p)
     args = parser.parse_args(argv)
     try:
+        if os.environ.get("JAXQUAD_NUM_PROCESSES"):  # a multi-process run starts before any JAX computation
+            from jaxquad import parallel
+
+            parallel.initialize()
         return int(modules[args.command].run(args) or 0)
     except (ValueError, FileNotFoundError) as e:
         # Known input errors: one line, exit 1 (tracebacks are for bugs).

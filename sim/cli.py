@@ -6,6 +6,8 @@ import argparse
 import shutil
 from pathlib import Path
 
+from jaxquad.cli import add_devices_argument
+
 SUMMARY_KIND = "jaxquad simulate"
 
 
@@ -39,6 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="depth image WxH, px (default 160x120)")  # fmt: skip
     parser.add_argument("--no-randomize", action="store_true",
                         help="nominal masses, friction, motors and noise (default: randomized per robot)")  # fmt: skip
+    add_devices_argument(parser)
 
 
 def write_fleet(log, folder: str | Path) -> Path:
@@ -64,19 +67,25 @@ def write_fleet(log, folder: str | Path) -> Path:
     return folder / "fleet.npz"
 
 
-def simulate(config, seconds: float, out: str | Path, progress: bool = True) -> Path:
+def simulate(config, seconds: float, out: str | Path, progress: bool = True) -> Path | None:
     """Run the fleet (`jaxquad.sim.rollout`) and write it (`write_fleet`) into the folder `out`.
 
     The folder is built beside `out` and renamed into place when complete (an earlier simulation
     in `out` is replaced only then), so nothing half-written is ever left at a final path. Chunks
-    stream into memory-mapped arrays inside it, so host memory stays bounded.
+    stream into memory-mapped arrays inside it, so host memory stays bounded. In a multi-process
+    run process 0 writes and the others return None.
     """
+    from jaxquad import parallel
     from jaxquad.io import atomic_dir, check_output_dir
     from jaxquad.sim.rollout import rollout
 
     if not (seconds > 0):
         raise ValueError(f"--seconds must be positive, got {seconds}")
     check_output_dir(out, kind=SUMMARY_KIND)
+    parallel.initialize()
+    if not parallel.is_main():
+        rollout(config, seconds, progress=False)
+        return None
     with atomic_dir(out) as tmp:
         store = tmp / ".arrays"
         store.mkdir()
@@ -103,7 +112,9 @@ def run(args: argparse.Namespace) -> int:
         width=args.resolution[0],
         height=args.resolution[1],
         randomize=not args.no_randomize,
+        devices=args.devices,
     )
     path = simulate(config, args.seconds, args.out)
-    print(f"wrote {path} and {args.robots} ground-truth TUM file(s), map(s) in {args.out}")
+    if path is not None:
+        print(f"wrote {path} and {args.robots} ground-truth TUM file(s), map(s) in {args.out}")
     return 0

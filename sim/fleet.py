@@ -10,7 +10,10 @@ Time is split into chunks of `frames_per_chunk` camera periods. One chunk is a n
 `jax.vmap`, so depth is cast only on camera frames and device memory holds one chunk at a time.
 The chunk length is chosen from the device's free memory and the chunk's footprint as XLA reports
 it (`jaxquad.sim.memory`), or an explicit length is checked, before anything is allocated: a fleet
-that cannot fit raises one line naming the largest robot count that fits.
+that cannot fit raises one line naming the largest robot count that fits. The robots are split over
+`config.devices` devices (default all; `jaxquad.parallel`): each device runs the chunk on its own
+block of robots (padded to a multiple of the device count with copies of the last robot), and the
+memory plan is made per device.
 
 The per-robot functions (`Fleet.functions`: init, physics step, log sample, camera frame, chunk)
 are pure and single-robot; closed-loop work drives the same physics step with its own commands.
@@ -35,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+from jaxquad import parallel
 from jaxquad.kernels.raycast import Boxes, pinhole_rays
 
 from . import memory
@@ -67,11 +71,12 @@ class FleetConfig:
     frames_per_chunk: int | None = None  # camera periods per chunk; None: sized from free memory (<= 30)
     randomize: bool = True
     n_waypoints: int = 96
+    devices: int | None = None  # devices the robots are split over (`jaxquad.parallel.mesh`); None: all
 
     def __post_init__(self):
         if self.style not in ("calm", "aggressive"):
             raise ValueError(f"unknown style {self.style!r}; choose calm or aggressive")
-        for name in ("n_robots", "n_worlds", "width", "height", "log_every", "frames_per_chunk"):
+        for name in ("n_robots", "n_worlds", "width", "height", "log_every", "frames_per_chunk", "devices"):
             if getattr(self, name) is not None and int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
 
@@ -95,8 +100,11 @@ class Fleet:
     logs_per_frame: int
     frames_per_chunk: int = 0  # resolved chunk length (camera frames)
     functions: FleetFunctions | None = None
-    chunk_bytes: int = 0  # device memory one chunk call holds (XLA's analysis)
+    chunk_bytes: int = 0  # device memory one chunk call holds on each device (XLA's analysis)
+    mesh: object = None  # jax.sharding.Mesh the robot axis is split over
+    n_batch: int = 0  # robots on the devices: n_robots rounded up to a multiple of the device count
     _structure: object = None
+    _placed: tuple = ()  # (model, setup) padded to n_batch robots and split over the mesh
     _init: object = None
     _chunk: object = None
 
@@ -236,14 +244,16 @@ def _batched_chunk(fleet: Fleet, frames: int):
     fn = functools.partial(fleet.functions.chunk, frames=frames)
     # Outputs stay time-major (samples, N, ...): the scan's own layout, so no device-side transpose
     # doubles the largest buffer (depth); the host reorders while copying.
-    return jax.jit(jax.vmap(fn, in_axes=(fleet.model_in_axes, 0, 0), out_axes=(0, 1)), donate_argnums=(2,))
+    axes = (fleet.model_in_axes, 0, 0)
+    fn = parallel.shard_batched(jax.vmap(fn, in_axes=axes, out_axes=(0, 1)), fleet.mesh, axes, (0, 1))
+    return jax.jit(fn, donate_argnums=(2,))
 
 
 def _compile_chunk(fleet: Fleet, state_shape, frames: int):
-    shapes = tuple((x.shape, str(x.dtype)) for x in jax.tree.leaves((fleet.model, fleet.setup, state_shape)))
-    key = (fleet._structure, shapes, frames)
+    shapes = tuple((x.shape, str(x.dtype)) for x in jax.tree.leaves((fleet._placed, state_shape)))
+    key = (fleet._structure, fleet.mesh, shapes, frames)
     if key not in _COMPILED:
-        _COMPILED[key] = _batched_chunk(fleet, frames).lower(fleet.model, fleet.setup, state_shape).compile()
+        _COMPILED[key] = _batched_chunk(fleet, frames).lower(*fleet._placed, state_shape).compile()
     return _COMPILED[key]
 
 
@@ -251,7 +261,7 @@ def _nbytes(tree) -> int:
     """Bytes of a pytree of arrays or shape structs (PRNG keys count as two uint32 words)."""
     total = 0
     for x in jax.tree.leaves(tree):
-        shape, dtype = np.shape(x), getattr(x, "dtype", np.asarray(x).dtype)
+        shape, dtype = np.shape(x), x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype
         itemsize = 8 if jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key) else np.dtype(dtype).itemsize
         total += int(np.prod(shape)) * itemsize
     return total
@@ -267,17 +277,28 @@ def _bind(fleet: Fleet, qpos0: Array, gyro_adr: int, acc_adr: int) -> None:
     """
     cfg = fleet.config
     fleet._structure = (dataclasses.replace(cfg, seed=0, n_robots=1, n_worlds=1, style="calm", randomize=True,
-                                            frames_per_chunk=None), gyro_adr, acc_adr)  # fmt: skip
-    if fleet._structure not in _FUNCTIONS:
+                                            frames_per_chunk=None, devices=None), gyro_adr, acc_adr)  # fmt: skip
+    fleet.mesh = parallel.mesh(cfg.devices)
+    fleet.n_batch = parallel.padded_size(cfg.n_robots, fleet.mesh)
+    axes = (fleet.model_in_axes, 0, 0, 0)
+    if (fleet._structure, fleet.mesh) not in _FUNCTIONS:
         fns = make_functions(fleet, gyro_adr, acc_adr)
-        _FUNCTIONS[fleet._structure] = (fns, jax.jit(jax.vmap(fns.init, in_axes=(fleet.model_in_axes, 0, 0, 0))))
-    fleet.functions, init_jit = _FUNCTIONS[fleet._structure]
+        init_jit = jax.jit(parallel.shard_batched(jax.vmap(fns.init, in_axes=axes), fleet.mesh, axes, 0))
+        _FUNCTIONS[fleet._structure, fleet.mesh] = (fns, init_jit)
+    fleet.functions, init_jit = _FUNCTIONS[fleet._structure, fleet.mesh]
+    # Robots past n_robots (filling the last device) are copies of the last robot; `rollout` drops them.
     keys = jax.random.split(jax.random.key(cfg.seed), cfg.n_robots)
-    fleet._init = lambda: init_jit(fleet.model, fleet.setup, qpos0, keys)
+    args = parallel.place(parallel.pad((fleet.model, fleet.setup, qpos0, keys), fleet.n_batch, axes), fleet.mesh, axes)
+    fleet._placed = args[:2]
+    if fleet.n_batch == cfg.n_robots:  # one copy of the per-robot constants, split over the devices
+        fleet.model, fleet.setup = fleet._placed
+    fleet._init = lambda: init_jit(*args)
     state_shape = jax.eval_shape(fleet._init)
-    per_frame = _nbytes(jax.eval_shape(_batched_chunk(fleet, 1), fleet.model, fleet.setup, state_shape)[1])
-    fixed = 2 * _nbytes(state_shape) + _nbytes((fleet.model, fleet.setup))
-    budget = int(memory.MEMORY_FRACTION * memory.free_bytes())
+    # The plan is per device: each holds n_batch / devices robots (the replicated model part is small).
+    share = 1.0 / fleet.mesh.size
+    per_frame = int(share * _nbytes(jax.eval_shape(_batched_chunk(fleet, 1), *fleet._placed, state_shape)[1]))
+    fixed = int(share * (2 * _nbytes(state_shape) + _nbytes(fleet._placed)))
+    budget = int(memory.MEMORY_FRACTION * min(memory.free_bytes(d) for d in fleet.mesh.local_devices))
     want = cfg.frames_per_chunk or MAX_FRAMES_PER_CHUNK
     frames = memory.plan_frames(fixed + per_frame * want, want, per_frame, int(memory.PLAN_FRACTION * budget))
     total = fixed + per_frame * frames
@@ -293,25 +314,26 @@ def _bind(fleet: Fleet, qpos0: Array, gyro_adr: int, acc_adr: int) -> None:
         # A 1-frame chunk's footprint: XLA's figure where a chunk was compiled, else the planned buffers
         # with the planning headroom; both scale with the robot count.
         at_one = total - per_frame * (frames - 1) if frames >= 1 else int((fixed + per_frame) / memory.PLAN_FRACTION)
-        n_max = memory.largest_fleet(cfg.n_robots, at_one, budget)
+        n_max = memory.largest_fleet(fleet.n_batch // fleet.mesh.size, at_one, budget) * fleet.mesh.size
         what = f"a chunk of {cfg.frames_per_chunk} frames" if cfg.frames_per_chunk and frames >= 1 else "even a 1-frame chunk"
+        per = f" per device on {fleet.mesh.size} devices" if fleet.mesh.size > 1 else ""
         raise ValueError(
             f"a fleet of {cfg.n_robots} robots does not fit: {what} needs more than the "
-            f"{budget / memory.GIB:.1f} GiB free; the largest fleet that fits has about {n_max} robots"
+            f"{budget / memory.GIB:.1f} GiB free{per}; the largest fleet that fits has about {n_max} robots"
         )
     fleet.frames_per_chunk, fleet.chunk_bytes, fleet._chunk = frames, total, compiled
 
 
 def init(fleet: Fleet) -> RobotState:
-    """Batched initial state (leading axis N)."""
+    """Batched initial state (leading axis `fleet.n_batch`, split over `fleet.mesh`)."""
     return fleet._init()
 
 
 def run_chunk(fleet: Fleet, state: RobotState) -> tuple[RobotState, dict[str, Array]]:
     """Advance every robot by one chunk; returns the new state (the old one is donated) and the
     chunk's samples, time-major: per-sample arrays (samples_per_chunk, N, ...) and `depth`
-    (frames, N, H, W)."""
-    return fleet._chunk(fleet.model, fleet.setup, state)
+    (frames, N, H, W), with N = `fleet.n_batch` (robots from n_robots on are padding copies)."""
+    return fleet._chunk(*fleet._placed, state)
 
 
 def n_chunks(fleet: Fleet, seconds: float) -> int:

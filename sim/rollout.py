@@ -12,8 +12,9 @@ import os
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
-import jax
 import numpy as np
+
+from jaxquad import parallel
 
 from .fleet import FleetConfig, build_fleet, init, n_chunks, run_chunk
 from .worlds import World, occupancy_map
@@ -54,9 +55,12 @@ class FleetLog(Mapping):
 
 def rollout(
     config: FleetConfig, seconds: float, progress: bool = True, store: str | os.PathLike | None = None
-) -> FleetLog:
+) -> FleetLog | None:
     """Simulate the fleet for `seconds` (rounded up to whole chunks) and return its log.
 
+    The robots are split over `config.devices` devices (all by default; `jaxquad.parallel`), with the
+    same numbers as on one. In a multi-process run every process calls this and process 0 gets the
+    log (the others get None).
     store: a folder for memory-mapped arrays (`<key>.npy`), else the arrays live in host memory.
     """
     from tqdm import tqdm
@@ -70,9 +74,11 @@ def rollout(
     arrays: dict[str, np.ndarray] = {}
     state = init(fleet)
     desc = f"simulate {n} x {config.robot}"
-    for c in tqdm(range(chunks), desc=desc, unit="chunk", disable=not progress, file=None):
+    for c in tqdm(range(chunks), desc=desc, unit="chunk", disable=not (progress and parallel.is_main()), file=None):
         state, outs = run_chunk(fleet, state)
-        outs = jax.device_get(outs)
+        outs = parallel.gather(outs)
+        if not parallel.is_main():
+            continue
         for key, value in outs.items():
             if key not in arrays:
                 shape = (n, F if key == "depth" else T) + value.shape[2:]  # robot-major on the host
@@ -82,14 +88,16 @@ def rollout(
                     path = Path(store) / f"{key}.npy"
                     arrays[key] = np.lib.format.open_memmap(path, mode="w+", dtype=value.dtype, shape=shape)
             step = value.shape[0]  # chunks come time-major: (samples or frames, N, ...)
-            arrays[key][:, c * step : (c + 1) * step] = np.swapaxes(value, 0, 1)
-    state = jax.device_get(state)
+            arrays[key][:, c * step : (c + 1) * step] = np.swapaxes(value[:, :n], 0, 1)  # drops padding robots
+    fallen, collided = parallel.gather((state.fallen, state.collided))
+    if not parallel.is_main():
+        return None
     arrays.update(
         t=(np.arange(T) + 1) * fleet.log_dt,
         robot=np.array(config.robot),
         joint_names=np.array(fleet.robot.joint_names),
-        fallen=np.asarray(state.fallen),
-        collided=np.asarray(state.collided),
+        fallen=fallen[:n],
+        collided=collided[:n],
         world_index=np.arange(n) % config.n_worlds,
     )
     if config.depth:

@@ -343,7 +343,7 @@ def test_tune_on_a_single_robot_log_with_the_default_holdout(f, tmp_path, capsys
     assert printed["params"] == yaml.safe_load(out.read_text())
     assert printed["observer_inputs"] == {"max_gap_s": 0.05, "torque_saturation": 0.99, "chunk": 4096, "axes": "xyz",
                                           "passive": True, "rows": "joints"}  # fmt: skip
-    assert set(printed["options"]) == {"chunk", "f1_tolerance", "top_k", "max_delay_s"}
+    assert set(printed["options"]) == {"chunk", "f1_tolerance", "top_k", "max_delay_s", "devices"}
     assert printed["base_params"]["bandwidth"] == 30.0  # the paper's, around which the grid lies
 
 

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import argparse
 
+from jaxquad.cli import add_devices_argument
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", help="robot log (.npz, single robot or fleet; see the README's log format)")
@@ -33,9 +35,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-floor", action="store_true",
         help="integrate the base height instead of fusing it with the floor under the stance feet (default: fuse)",
     )
+    add_devices_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
+    from jaxquad import parallel
     from jaxquad.cli import progress_bar
     from jaxquad.estimate import scores
     from jaxquad.estimate.run import SUMMARY_KIND, run_estimate
@@ -55,7 +59,9 @@ def run(args: argparse.Namespace) -> int:
     odometry = dict(rolling=args.feet == "rolling", robust=args.robust, floor=not args.no_floor)
     with progress_bar("estimate", "robot") as progress:
         summary = run_estimate(log, args.out, args.contacts, args.params, progress, args.band_height,
-                               args.range_min, args.range_max, odometry=odometry)  # fmt: skip
+                               args.range_min, args.range_max, odometry=odometry, devices=args.devices)  # fmt: skip
+    if not parallel.is_main():
+        return 0
     robots = summary["robots"]
     brief = {"robots": len(robots), "fallen": sum(r["fallen"] for r in robots), "out": str(args.out)}
     per_robot = [r["scores"] for r in robots]

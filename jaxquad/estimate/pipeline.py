@@ -26,7 +26,7 @@ than `min_stance` feet or an invalid solve reuses the last good twist; a time ga
 sample)`), what a closed loop calls as its sensors arrive; `estimate_robot` scans them over a log (params a
 traced pytree, so it vmaps over parameter sets and differentiates w.r.t. observer numbers through soft
 contacts); `estimate_fleet` is it jitted and vmapped over robots, compiled once per robot model and
-configuration.
+configuration, with the robots split over the devices (`jaxquad.parallel`).
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from jaxquad import dynamics
+from jaxquad import dynamics, parallel
 from jaxquad.estimate import attitude as att
 from jaxquad.estimate import differentiate as dif
 from jaxquad.estimate.inputs import CONTACT_SOURCES, R_base_imu, RobotInputs, full_state, gaps, robot_inputs, torque_ok
@@ -400,15 +400,22 @@ def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs
 
 
 @functools.lru_cache(maxsize=8)
-def _compiled(robot, config: PipelineConfig, batched_params: bool):
-    fn = functools.partial(estimate_robot, robot, config)
-    return jax.jit(jax.vmap(fn, in_axes=(0 if batched_params else None, 0)))
+def _compiled(robot, config: PipelineConfig, axes: tuple, mesh):
+    fn = jax.vmap(functools.partial(estimate_robot, robot, config), in_axes=axes)
+    return jax.jit(parallel.shard_batched(fn, mesh, axes, 0))
 
 
-def estimate_fleet(robot, config: PipelineConfig, params: PipelineParams, inputs: RobotInputs, batched_params: bool = False) -> Estimate:
+def estimate_fleet(
+    robot, config: PipelineConfig, params: PipelineParams, inputs: RobotInputs, batched_params: bool = False,
+    devices: int | None = None,
+) -> Estimate:
     """`estimate_robot` over N robots (inputs with a leading axis N), jitted once per robot model
-    and configuration; `batched_params` vmaps the parameters too (one set per robot)."""
-    return _compiled(robot, config, batched_params)(params, inputs)
+    and configuration; `batched_params` vmaps the parameters too (one set per robot). The robots are
+    split over `devices` devices (default all), padded to a multiple of them with copies of the last."""
+    mesh = parallel.mesh(devices)
+    n, axes = inputs.q.shape[0], (0 if batched_params else None, 0)
+    args = parallel.place(parallel.pad((params, inputs), parallel.padded_size(n, mesh), axes), mesh, axes)
+    return parallel.unpad(_compiled(robot, config, axes, mesh)(*args), n)
 
 
 def inputs_from_log(robot, log, contacts: str = "truth") -> tuple[RobotInputs, PipelineConfig]:

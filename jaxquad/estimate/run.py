@@ -52,12 +52,14 @@ def load_params(path: str | os.PathLike | None, n_feet: int = 4, contacts: str =
     return eqx.tree_at(lambda p: p.observer, params, read_observer_params(path, n_feet, mode))
 
 
-def estimate_log(log: Mapping, contacts: str = "truth", params=None, robot=None, odometry: dict | None = None):
+def estimate_log(
+    log: Mapping, contacts: str = "truth", params=None, robot=None, odometry: dict | None = None, devices: int | None = None
+):  # fmt: skip
     """Run the pipeline over a log (a dict, a loaded `.npz` or a `jaxquad.sim.FleetLog`); returns
     (robot, config, Estimate as NumPy with a leading robot axis). odometry: leg-odometry choices of
-    `PipelineConfig` (rolling, robust, robust_iters, floor) to override."""
-    import jax
-
+    `PipelineConfig` (rolling, robust, robust_iters, floor) to override; devices: how many devices
+    the robots are split over (default all)."""
+    from jaxquad import parallel
     from jaxquad.estimate import pipeline
     from jaxquad.robots import load
 
@@ -65,8 +67,8 @@ def estimate_log(log: Mapping, contacts: str = "truth", params=None, robot=None,
     inputs, config = pipeline.inputs_from_log(robot, log, contacts)
     config = dataclasses.replace(config, **(odometry or {}))
     params = load_params(None, len(robot.foot_names), contacts) if params is None else params
-    out = pipeline.estimate_fleet(robot, config, params, inputs)
-    return robot, config, jax.tree.map(np.asarray, out)
+    out = pipeline.estimate_fleet(robot, config, params, inputs, devices=devices)
+    return robot, config, parallel.gather(out)
 
 
 @dataclasses.dataclass
@@ -116,11 +118,13 @@ def trajectory_metrics(t, est, gt, valid) -> dict:
 def estimate_and_score(
     log: Mapping, contacts: str = "truth", params=None, progress=None, band_height: int = 5,
     range_min: float = 0.2, range_max: float = 8.0, source: str | None = None, odometry: dict | None = None,
+    devices: int | None = None,
 ) -> EstimateRun:
     """Estimate over `log`, slice its depth frames into scans, score against its ground truth.
 
     params: PipelineParams (the paper's defaults if None); band_height (px) and range_min/range_max
-    (m) configure the scans; source: where the log came from, for the summary; odometry as `estimate_log`."""
+    (m) configure the scans; source: where the log came from, for the summary; odometry and devices as
+    `estimate_log`."""
     from jaxquad.estimate.inputs import check_log
     from jaxquad.io.jsonfile import json_ready
     from jaxquad.io.params import observer_params_dict
@@ -132,7 +136,7 @@ def estimate_and_score(
         params = load_params(None, len(robot.foot_names), contacts)
     if progress is not None:
         progress(0, np.asarray(log["fallen"]).shape[0] if "fallen" in log else 1)  # inputs checked
-    robot, config, out = estimate_log(log, contacts, params, robot, odometry)
+    robot, config, out = estimate_log(log, contacts, params, robot, odometry, devices)
     t = np.asarray(log["t"], np.float64)
     fleet = "fallen" in log
     n = out.p_world_base.shape[0]
@@ -190,10 +194,13 @@ def write_run(run: EstimateRun, folder: str | os.PathLike) -> None:
 def run_estimate(
     log, out_dir, contacts: str = "truth", params_path=None, progress=None,
     band_height: int = 5, range_min: float = 0.2, range_max: float = 8.0, odometry: dict | None = None,
+    devices: int | None = None,
 ) -> dict:  # fmt: skip
     """Estimate over `log` (a path to a `.npz`, or a log mapping such as a `jaxquad.sim.FleetLog`),
     write the output folder `out_dir` (checked first; replaced whole when complete, if it holds an
-    earlier estimate), return the summary dict."""
+    earlier estimate), return the summary dict. The robots are split over `devices` devices (default
+    all); in a multi-process run every process estimates and process 0 writes."""
+    from jaxquad import parallel
     from jaxquad.io import atomic_dir, check_output_dir, load_log
     from jaxquad.robots import load
 
@@ -203,9 +210,11 @@ def run_estimate(
         source, log = str(log), load_log(log)
     robot = load(str(np.asarray(log["robot"])))
     params = load_params(params_path, len(robot.foot_names), contacts)
-    run = estimate_and_score(log, contacts, params, progress, band_height, range_min, range_max, source, odometry)
+    run = estimate_and_score(log, contacts, params, progress, band_height, range_min, range_max, source, odometry,
+                             devices)  # fmt: skip
     if params_path is not None:
         run.summary["params_file"] = str(params_path)
-    with atomic_dir(out_dir) as tmp:
-        write_run(run, tmp)
+    if parallel.is_main():
+        with atomic_dir(out_dir) as tmp:
+            write_run(run, tmp)
     return run.summary

@@ -7,6 +7,7 @@ import functools
 import os
 from pathlib import Path
 
+import jax
 import mujoco
 import numpy as np
 from jaxquad._mjx import mjx
@@ -193,7 +194,9 @@ def _structure(
     torque_limit = np.where(ctrl_limited, np.abs(m.actuator_ctrlrange).max(axis=1), np.inf)
     free = int(m.body_jntadr[base_body])
     try:
-        mjx_model = mjx.put_model(m)
+        # This process's first device: MJX's default, jax.devices()[0], belongs to process 0 in a
+        # multi-process run.
+        mjx_model = mjx.put_model(m, device=jax.local_devices()[0])
     except NotImplementedError as e:
         raise ValueError(f"robot model {path} is not supported by MJX: {_first_line(e)}") from None
 

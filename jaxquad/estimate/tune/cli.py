@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import argparse
 
+from jaxquad.cli import add_devices_argument
+
 
 def _grid_size(text: str) -> int | tuple[int, ...]:
     try:
@@ -34,7 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     grid = parser.add_argument_group("grid search")
     grid.add_argument("--grid-size", type=_grid_size, default=4,
                       help="points per axis (bandwidth, alpha front, alpha rear, threshold on, off/on ratio): N or N,N,N,N,N (default 4)")  # fmt: skip
-    grid.add_argument("--chunk", type=int, default=256, help="configurations per vmapped call (default 256)")
+    grid.add_argument("--chunk", type=int, default=256,
+                      help="configurations per vmapped call, rounded up to a multiple of the devices (default 256)")  # fmt: skip
+    add_devices_argument(grid, "grid's configurations (and with --simulate the robots)")
     grad = parser.add_argument_group("gradient tuning")
     grad.add_argument("--steps", type=int, default=200, help="maximum optimizer steps (default 200)")
     grad.add_argument("--lr", type=float, default=0.05, help="Adam learning rate (default 0.05)")
@@ -56,8 +60,10 @@ def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
+    import jax
     from tqdm import tqdm
 
+    from jaxquad import parallel
     from jaxquad.estimate import tune as tn
     from jaxquad.estimate.tune.run import call_options
     from jaxquad.io import check_output_file, load_log, to_json, write_json
@@ -82,8 +88,10 @@ def run(args: argparse.Namespace) -> int:
 
             if args.robots < 1 or not args.seconds > 0:
                 raise ValueError("--robots must be >= 1 and --seconds positive")
+            if jax.process_count() > 1:
+                raise ValueError("--simulate runs in one process; simulate first, then tune --log in several")
             config = FleetConfig(robot=args.robot, world=args.world, n_robots=args.robots, style=args.style,
-                                 seed=args.seed, depth=False)  # fmt: skip
+                                 seed=args.seed, depth=False, devices=args.devices)  # fmt: skip
             log_path = simulate(config, args.seconds, tmp)
             simulated = {"config": dataclasses.asdict(config), "seconds": args.seconds}
             walls["simulate_s"] = time.perf_counter() - t0
@@ -100,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         spec = tn.GridSpec.default(args.grid_size)
         bar = tqdm(total=spec.size, desc="grid", unit="config")
         progress = lambda done, total: bar.update(done - bar.n)  # noqa: E731
-        kwargs = dict(spec=spec, chunk=args.chunk)
+        kwargs = dict(spec=spec, chunk=args.chunk, devices=args.devices)
     else:
         bar = tqdm(total=args.steps, desc="gradient", unit="step")
 
@@ -116,6 +124,8 @@ def run(args: argparse.Namespace) -> int:
     finally:
         bar.close()
     walls["total_s"] = time.perf_counter() - t0
+    if not parallel.is_main():  # every process searched the same grid; process 0 writes
+        return 0
     summary = {"log": None if args.simulate else str(args.log), "simulated": simulated, "robot": robot.name,
                "holdout_requested": args.holdout, "observer_inputs": input_options}
     summary |= tuned | {"walls": walls}

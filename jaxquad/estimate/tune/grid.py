@@ -4,12 +4,14 @@ Objective: pooled F1, counted inside the scan. Among the `top_k` configurations 
 lie within `f1_tolerance` of the best, the one with the smallest delay cost wins (exact delays from
 a full re-run): mean |touchdown delay| + mean |lift-off delay| in ms, every missed edge counting as
 max_delay_s; remaining ties go to the lower index. Configurations run on one vmap axis, robots on
-another, configurations in fixed-size chunks to bound memory.
+another, configurations in fixed-size chunks to bound memory, each chunk split over the devices
+(`jaxquad.parallel`; every device scores its configurations on all robots).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from typing import Callable
@@ -18,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxquad import parallel
 from jaxquad.estimate.tune.observer_inputs import ContactTruth, ObserverInputs
 from jaxquad.estimate.tune.observer_scan import Counts, delay_cost, f1_of, fleet_scores, observer_counts
 from jaxquad.kernels import ObserverParams
@@ -75,7 +78,6 @@ class GridSpec:
         )  # fmt: skip
 
 
-@jax.jit
 def _grid_counts(params: ObserverParams, inputs: ObserverInputs, truth: ContactTruth) -> Counts:
     """Counts summed over robots for a batch of configurations (leading axis C)."""
     per_robot = jax.vmap(observer_counts, in_axes=(None, 0, 0))
@@ -83,18 +85,27 @@ def _grid_counts(params: ObserverParams, inputs: ObserverInputs, truth: ContactT
     return jax.tree.map(lambda a: a.sum(axis=1), counts)
 
 
+@functools.lru_cache(maxsize=8)
+def _sharded_counts(mesh):
+    return jax.jit(parallel.shard_batched(_grid_counts, mesh, in_axes=(0, None, None), out_axes=0))
+
+
 def grid_counts(
     params: ObserverParams, inputs: ObserverInputs, truth: ContactTruth, chunk: int = 256,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Callable[[int, int], None] | None = None, devices: int | None = None,
 ) -> Counts:
     """`observer_counts` of C configurations (leading axis C) summed over the fleet, `chunk`
-    configurations per vmapped call (the last chunk padded, so one compilation serves all)."""
+    configurations per vmapped call (the last chunk padded, so one compilation serves all), split
+    over `devices` devices (default all; `chunk` is rounded up to a multiple of them)."""
+    mesh = parallel.mesh(devices)
     c = params.bandwidth.shape[0]
-    chunk = max(1, min(chunk, c))
+    chunk = parallel.padded_size(max(1, min(chunk, c)), mesh)
+    shared = parallel.place((inputs, truth), mesh, None)  # every device scores on all robots
     parts = []
     for start in range(0, c, chunk):
         index = np.minimum(np.arange(start, start + chunk), c - 1)
-        out = _grid_counts(jax.tree.map(lambda a: a[index], params), inputs, truth)
+        part = parallel.place(jax.tree.map(lambda a: a[index], params), mesh)
+        out = parallel.gather(_sharded_counts(mesh)(part, *shared))
         parts.append(jax.tree.map(lambda a: np.asarray(a)[: min(chunk, c - start)], out))
         if progress is not None:
             progress(min(start + chunk, c), c)
@@ -126,12 +137,13 @@ class GridResult:
 def grid_search(
     spec: GridSpec, base: ObserverParams, inputs: ObserverInputs, truth: ContactTruth, t,
     chunk: int = 256, f1_tolerance: float = 0.005, top_k: int = 8, max_delay_s: float = 0.1,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Callable[[int, int], None] | None = None, devices: int | None = None,
 ) -> GridResult:
-    """Best configuration of the grid on the given robots (see the module docstring for the rule)."""
+    """Best configuration of the grid on the given robots (see the module docstring for the rule);
+    the grid is split over `devices` devices (default all)."""
     start = time.perf_counter()
     params = spec.params(base)
-    counts = grid_counts(params, inputs, truth, chunk, progress)
+    counts = grid_counts(params, inputs, truth, chunk, progress, devices)
     f1 = np.asarray(f1_of(counts))
     rmse = np.sqrt(counts.force_sq.sum(-1) / np.maximum(counts.samples * counts.force_sq.shape[-1], 1))
     take = lambda i: jax.tree.map(lambda a: a[i], params)  # noqa: E731
