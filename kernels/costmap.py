@@ -83,7 +83,7 @@ def costmap_from_occupancy(
 ) -> Float[Array, "H W"]:
     """Cost grid (0..255 as float32, see module doc) from an occupancy grid (-1 unknown, 0..100)."""
     grid = jnp.asarray(grid, jnp.int32)
-    obstacle = grid >= params.occupied_thresh
+    obstacle = grid.astype(jnp.float32) >= params.occupied_thresh
     cost = inflation_cost(distance_transform(obstacle) * resolution, params)
     # As Nav2 without inflate_unknown: unknown stays unknown unless inflation makes it (at least) inscribed.
     return jnp.where((grid < 0) & (cost < INSCRIBED), float(UNKNOWN), cost)

@@ -50,7 +50,7 @@ class FrontierChoice(eqx.Module):
 
 
 def free_cells(grid: Int[Array, "H W"], free_thresh: float | Float[Array, ""]) -> Bool[Array, "H W"]:
-    return (grid >= 0) & (grid < free_thresh)
+    return (grid >= 0) & (grid.astype(jnp.float32) < free_thresh)
 
 
 def frontier_mask(grid: Int[Array, "H W"], free_thresh: float | Float[Array, ""]) -> Bool[Array, "H W"]:
@@ -94,8 +94,8 @@ def cluster_stats(mask: Bool[Array, "H W"], labels: Int[Array, "H W"]) -> tuple[
         indexing="ij",
     )
     size = jax.ops.segment_sum(mask.reshape(-1).astype(jnp.int32), lab, n)
-    sums = jax.ops.segment_sum(jnp.stack([r.reshape(-1), c.reshape(-1)], -1) * mask.reshape(-1, 1), lab, n)
-    return size, sums / jnp.where(size > 0, size, jnp.nan)[:, None]
+    sums = jax.ops.segment_sum(jnp.where(mask.reshape(-1, 1), jnp.stack([r.reshape(-1), c.reshape(-1)], -1), 0.0), lab, n)
+    return size, sums / jnp.where(size > 0, size.astype(jnp.float32), jnp.nan)[:, None]
 
 
 def choose_frontier(
@@ -121,7 +121,8 @@ def choose_frontier(
         ok = mask & neighbour(reach, dr, dc, False)
         nr, nc = rr + dr, cc + dc
         lab_k.append(jnp.where(ok, labels, n - 1))
-        d2_k.append(jnp.where(ok, (nr - cen[..., 0]) ** 2 + (nc - cen[..., 1]) ** 2, jnp.inf))
+        d2 = (nr.astype(jnp.float32) - cen[..., 0]) ** 2 + (nc.astype(jnp.float32) - cen[..., 1]) ** 2
+        d2_k.append(jnp.where(ok, d2, jnp.inf))
         v_k.append(jnp.where(ok, neighbour(value, dr, dc, jnp.inf), jnp.inf))
         idx_k.append(jnp.clip(nr, 0, h - 1) * w + jnp.clip(nc, 0, w - 1))
     lab_k, d2_k, v_k, idx_k = (jnp.stack(x).reshape(-1) for x in (lab_k, d2_k, v_k, idx_k))
@@ -131,9 +132,10 @@ def choose_frontier(
     goal_idx = jax.ops.segment_min(jnp.where(is_best, idx_k, h * w), lab_k, n)
 
     blocked = jnp.append(blacklist.reshape(-1), True)[jnp.minimum(goal_idx, h * w)]
-    ok = (size * resolution >= params.min_size) & jnp.isfinite(path_cost) & ~blocked
+    size_m = size.astype(jnp.float32) * resolution
+    ok = (size_m >= params.min_size) & jnp.isfinite(path_cost) & ~blocked
     ok = ok.at[n - 1].set(False)
-    cost = params.potential_scale * path_cost * resolution - params.gain_scale * size * resolution
+    cost = params.potential_scale * path_cost * resolution - params.gain_scale * size_m
     cost = jnp.where(ok, cost, jnp.inf)
     best = jnp.argmin(cost)
     g = jnp.minimum(goal_idx[best], h * w - 1)

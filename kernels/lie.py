@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 from jaxlie import SE2, SE3, SO2, SO3
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 # Below this squared angle the closed forms of V(phi) divide by ~0; their Taylor series take over.
 _SMALL_ANGLE_SQ = 1e-6
@@ -26,8 +26,9 @@ __all__ = [
 ]  # fmt: skip
 
 
-def skew(w: Float[Array, "3"]) -> Float[Array, "3 3"]:
+def skew(w: Float[ArrayLike, "3"]) -> Float[Array, "3 3"]:
     """Matrix S(w) with S(w) x = w x x."""
+    w = jnp.asarray(w)
     zero = jnp.zeros_like(w[0])
     return jnp.array([[zero, -w[2], w[1]], [w[2], zero, -w[0]], [-w[1], w[0], zero]], dtype=w.dtype)
 
@@ -46,21 +47,25 @@ def se3_exp(v: Float[Array, "3"], phi: Float[Array, "3"]) -> SE3:
     return SE3.from_rotation_and_translation(SO3.exp(phi), p)
 
 
-def rotation_matrix(q_wxyz: Float[Array, "4"]) -> Float[Array, "3 3"]:
+def rotation_matrix(q_wxyz: Float[ArrayLike, "4"]) -> Float[Array, "3 3"]:
     """Rotation matrix of a quaternion normalized first, so that small drift of a filter is harmless."""
+    q_wxyz = jnp.asarray(q_wxyz)
     return SO3(q_wxyz / jnp.linalg.norm(q_wxyz)).as_matrix()
 
 
-def quat_from_rpy(roll: Float[Array, ""], pitch: Float[Array, ""], yaw: Float[Array, ""]) -> Float[Array, "4"]:
+def quat_from_rpy(
+    roll: Float[ArrayLike, ""], pitch: Float[ArrayLike, ""], yaw: Float[ArrayLike, ""]
+) -> Float[Array, "4"]:
     """q = Rz(yaw) Ry(pitch) Rx(roll), (w, x, y, z): the IMU's ZYX Euler convention."""
     return SO3.from_rpy_radians(roll, pitch, yaw).wxyz
 
 
-def roll_pitch(q_wxyz: Float[Array, "*B 4"]) -> tuple[Float[Array, "*B"], Float[Array, "*B"]]:
+def roll_pitch(q_wxyz: Float[ArrayLike, "*B 4"]) -> tuple[Float[Array, "*B"], Float[Array, "*B"]]:
     """ZYX-Euler roll and pitch (rad) of world-from-base q, read from the world z axis in the base frame.
 
     Uses only R[2, :], so it is exact for any yaw; q may carry any scale and leading batch axes.
     """
+    q_wxyz = jnp.asarray(q_wxyz)
     w, x, y, z = jnp.moveaxis(q_wxyz / jnp.linalg.norm(q_wxyz, axis=-1, keepdims=True), -1, 0)
     r20 = 2.0 * (x * z - w * y)
     r21 = 2.0 * (y * z + w * x)
@@ -70,20 +75,20 @@ def roll_pitch(q_wxyz: Float[Array, "*B 4"]) -> tuple[Float[Array, "*B"], Float[
     return roll, pitch
 
 
-def yaw_of(q_wxyz: Float[Array, "*B 4"]) -> Float[Array, "*B"]:
+def yaw_of(q_wxyz: Float[ArrayLike, "*B 4"]) -> Float[Array, "*B"]:
     """ZYX-Euler yaw (rad) of world-from-base q (any scale, leading batch axes)."""
-    w, x, y, z = jnp.moveaxis(q_wxyz, -1, 0)
+    w, x, y, z = jnp.moveaxis(jnp.asarray(q_wxyz), -1, 0)
     return jnp.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
-def R_level_base(roll: Float[Array, ""], pitch: Float[Array, ""]) -> Float[Array, "3 3"]:
+def R_level_base(roll: Float[ArrayLike, ""], pitch: Float[ArrayLike, ""]) -> Float[Array, "3 3"]:
     """R_y(pitch) R_x(roll): base frame -> the gravity-levelled frame that shares the base's heading."""
     return (SO3.from_y_radians(pitch) @ SO3.from_x_radians(roll)).as_matrix()
 
 
-def wrap_angle(a: Float[Array, "*batch"]) -> Float[Array, "*batch"]:
+def wrap_angle(a: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch"]:
     """Angle wrapped to [-pi, pi)."""
-    return (a + jnp.pi) % (2.0 * jnp.pi) - jnp.pi
+    return (jnp.asarray(a) + jnp.pi) % (2.0 * jnp.pi) - jnp.pi
 
 
 def se2(xy_theta: Float[Array, "*B 3"]) -> SE2:

@@ -82,7 +82,7 @@ def find_loop_closure(
     """The loop-closure candidate of node j against the older stored nodes (sensor poses, world frame)."""
     n = poses.shape[0]
     idx = jnp.arange(n)
-    step = jnp.linalg.norm(jnp.diff(poses[:, :2], axis=0), axis=1) * (node_mask[1:] & node_mask[:-1])
+    step = jnp.where(node_mask[1:] & node_mask[:-1], jnp.linalg.norm(jnp.diff(poses[:, :2], axis=0), axis=1), 0.0)
     travel = jnp.concatenate([jnp.zeros(1), jnp.cumsum(step)])
     dist = jnp.linalg.norm(poses[:, :2] - poses[j, :2], axis=1)
     eligible = node_mask & (idx < j) & (travel[j] - travel >= params.min_travel) & (dist < params.search_radius)

@@ -26,7 +26,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Key, UInt32
 
 from jaxquad.kernels.lie import SE2, wrap_angle
 from jaxquad.kernels.likelihood_field import LikelihoodField, sample_free_poses, scan_likelihood
@@ -84,10 +84,12 @@ class AmclState(eqx.Module):
 
 
 class AmclInputs(eqx.Module):
-    odom: Float[Array, "3"]  # odometry pose x, y (m), theta (rad) at the scan
-    ranges: Float[Array, "W"]  # m; inf / nan / out of range = no reading
-    bearings: Float[Array, "W"]  # rad, counter-clockwise from the laser's x axis
-    key: Array
+    """One scan's inputs; leading axes B (robots, scans) when stacked for vmap or scan."""
+
+    odom: Float[Array, "*B 3"]  # odometry pose x, y (m), theta (rad) at the scan
+    ranges: Float[Array, "*B W"]  # m; inf / nan / out of range = no reading
+    bearings: Float[Array, "*B W"]  # rad, counter-clockwise from the laser's x axis
+    key: Key[Array, "*B"] | UInt32[Array, "*B 2"]  # a typed or a legacy (uint32) key
 
 
 class AmclOutput(eqx.Module):
@@ -136,7 +138,7 @@ def systematic_resample(log_w: Float[Array, "P"], mask: Bool[Array, "P"], u: Flo
     cdf = cdf / cdf[-1]
     n = jnp.sum(mask)
     rank = jnp.cumsum(mask) - 1
-    pos = jnp.minimum((u + rank) / n, jnp.nextafter(jnp.float32(1.0), jnp.float32(0.0)))
+    pos = jnp.minimum((u + rank.astype(u.dtype)) / n.astype(u.dtype), jnp.nextafter(jnp.float32(1.0), jnp.float32(0.0)))
     idx = jnp.searchsorted(cdf, pos, side="right")
     return jnp.where(mask, idx, jnp.arange(mask.shape[0]))
 
@@ -162,7 +164,7 @@ def measurement_update(
     p_random = jnp.clip(1.0 - jnp.exp(wf - ws), 0.0, 1.0)
     n_eff = effective_sample_size(lw)
     n = jnp.sum(m)
-    resample = (n_eff < params.resample_ratio * n) | (p_random > 0.0)
+    resample = (n_eff < params.resample_ratio * n.astype(lw.dtype)) | (p_random > 0.0)
 
     k_u, k_pick = jax.random.split(key)
     idx = systematic_resample(lw, m, jax.random.uniform(k_u))

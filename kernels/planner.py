@@ -16,7 +16,7 @@ import math
 import jax
 import jax.numpy as jnp
 from jaxquad.kernels.costmap import INSCRIBED, UNKNOWN
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Bool, Float, Int, Shaped
 
 # (drow, dcol) of the 8 neighbours and their step lengths (cells).
 OFFSETS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
@@ -25,7 +25,7 @@ _STEP = tuple(math.hypot(dr, dc) for dr, dc in OFFSETS)
 _SWEEPS_PER_CHECK = 4
 
 
-def neighbour(x: Array, dr: int, dc: int, fill: float) -> Array:
+def neighbour(x: Shaped[Array, "H W"], dr: int, dc: int, fill: bool | int | float) -> Shaped[Array, "H W"]:
     """y[r, c] = x[r + dr, c + dc], `fill` outside the grid."""
     padded = jnp.pad(x, 1, constant_values=fill)
     h, w = x.shape
@@ -132,6 +132,6 @@ def nearest_open_cell(
     """The traversable cell nearest to `rc` (Euclidean, cells) within `max_distance` cells, and whether one exists."""
     h, w = weight.shape
     r, c = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
-    d2 = jnp.where(jnp.isfinite(weight), (r - rc[0]) ** 2 + (c - rc[1]) ** 2, jnp.inf).astype(jnp.float32)
+    d2 = jnp.where(jnp.isfinite(weight), ((r - rc[0]) ** 2 + (c - rc[1]) ** 2).astype(jnp.float32), jnp.inf)
     k = jnp.argmin(d2)
     return jnp.stack([k // w, k % w]).astype(jnp.int32), d2.reshape(-1)[k] <= max_distance**2

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from jaxquad.kernels.twist import Twist, body_twist
 
@@ -36,7 +36,7 @@ class RobustTwist(eqx.Module):
 
 
 def robust_weight(
-    residual_norm: Float[Array, "*B"], scale: Float[Array, ""], loss: str
+    residual_norm: Float[Array, "*B"], scale: Float[ArrayLike, ""], loss: str
 ) -> Float[Array, "*B"]:
     """u(r) of the module docstring for residual norms r >= 0 (m/s) and scale c > 0 (m/s)."""
     x = residual_norm / scale

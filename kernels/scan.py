@@ -18,12 +18,12 @@ Conventions.
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from jaxquad.kernels.lie import R_level_base
 
@@ -47,7 +47,7 @@ class Scan(eqx.Module):
     range_max: Float[Array, ""]
 
 
-Intrinsics = CameraIntrinsics | Sequence[float]
+Intrinsics = CameraIntrinsics | Sequence[Float[ArrayLike, ""]]  # (fx, fy, cx, cy) in pixels
 
 
 def _unpack(intrinsics: Intrinsics) -> tuple[Array, Array, Array, Array]:
@@ -57,7 +57,7 @@ def _unpack(intrinsics: Intrinsics) -> tuple[Array, Array, Array, Array]:
     return tuple(jnp.asarray(c, dtype=jnp.float32) for c in (fx, fy, cx, cy))
 
 
-def _check_image(depth: Array, band_height: int) -> None:
+def _check_image(depth: ArrayLike, band_height: int) -> None:
     if depth.ndim != 2:
         raise ValueError(f"depth must be an H x W image, got shape {depth.shape}")
     if not 1 <= band_height <= depth.shape[0]:
@@ -71,7 +71,7 @@ def _readings(z: Array, inside: Array) -> tuple[Array, Array]:
     return jnp.where(good, z, 1.0), good
 
 
-def _band_depth(depth: Array, rows: Array) -> tuple[Array, Array]:
+def _band_depth(depth: ArrayLike, rows: Array) -> tuple[Array, Array]:
     """Depth of pixels (rows[k, u], u) for every column u and whether each is a reading (`_readings`).
 
     The band is read as one gather of single linear indices into the flattened image (under vmap:
@@ -99,13 +99,13 @@ def _column_scan(z: Array, good: Array, u: Array, fx: Array, cx: Array, range_mi
 
 
 def stabilized_scan(
-    depth: Float[Array, "H W"],
+    depth: Float[ArrayLike, "H W"],
     intrinsics: Intrinsics,
-    roll: Float[Array, ""],
-    pitch: Float[Array, ""],
+    roll: Float[ArrayLike, ""],
+    pitch: Float[ArrayLike, ""],
     band_height: int,
-    range_min: float | Float[Array, ""] = 0.2,
-    range_max: float | Float[Array, ""] = 8.0,
+    range_min: Float[ArrayLike, ""] = 0.2,
+    range_max: Float[ArrayLike, ""] = 8.0,
 ) -> Scan:
     """IMU-stabilized scan, one ray per image column (the slicing definition of facts.md Sec. 3).
 
@@ -125,11 +125,11 @@ def stabilized_scan(
 
 
 def baseline_scan(
-    depth: Float[Array, "H W"],
+    depth: Float[ArrayLike, "H W"],
     intrinsics: Intrinsics,
     band_height: int,
-    range_min: float | Float[Array, ""] = 0.2,
-    range_max: float | Float[Array, ""] = 8.0,
+    range_min: Float[ArrayLike, ""] = 0.2,
+    range_max: Float[ArrayLike, ""] = 8.0,
 ) -> Scan:
     """Unstabilized scan (ROS depthimage_to_laserscan): the band of `stabilized_scan` at zero roll and
     pitch, rows floor(c_y - h/2) + k in every column, read as one contiguous slice of the image."""
@@ -148,17 +148,17 @@ def baseline_scan(
 
 
 def level_scan(
-    depth: Float[Array, "H W"],
+    depth: Float[ArrayLike, "H W"],
     intrinsics: Intrinsics,
-    roll: Float[Array, ""],
-    pitch: Float[Array, ""],
+    roll: Float[ArrayLike, ""],
+    pitch: Float[ArrayLike, ""],
     band_height: int,
-    range_min: float | Float[Array, ""] = 0.2,
-    range_max: float | Float[Array, ""] = 8.0,
+    range_min: Float[ArrayLike, ""] = 0.2,
+    range_max: Float[ArrayLike, ""] = 8.0,
     n_bins: int = 320,
-    height_window: float | Float[Array, ""] = 0.05,
-    angle_min: float | Float[Array, ""] | None = None,
-    angle_max: float | Float[Array, ""] | None = None,
+    height_window: Float[ArrayLike, ""] = 0.05,
+    angle_min: Float[ArrayLike, ""] | None = None,
+    angle_max: Float[ArrayLike, ""] | None = None,
 ) -> Scan:
     """Gravity-levelled scan: the horizontal plane through the camera, binned by bearing.
 

@@ -123,7 +123,8 @@ def _exact_search(spec, grid, flat, inside, exclude_rc, exclude_r2):
             kr * P + kc,
             inside[a][:, None, None, :],
         )
-        far = (kr - exclude_rc[0]) ** 2 + (kc - exclude_rc[1]) ** 2 >= exclude_r2
+        kr_f, kc_f = kr.astype(exclude_rc.dtype), kc.astype(exclude_rc.dtype)
+        far = (kr_f - exclude_rc[0]) ** 2 + (kc_f - exclude_rc[1]) ** 2 >= exclude_r2
         ok = live[:, None, None] & (kr <= W) & (kc <= W) & far
         sc = jnp.where(ok, sc, -1).reshape(-1)
         j = jnp.argmax(sc)
@@ -205,18 +206,18 @@ def match_scan(
     ja, js = j // sc_f.shape[1], j % sc_f.shape[1]
     r1, c1 = r0 + d[js // (2 * R + 1)], c0 + d[js % (2 * R + 1)]
     theta = fine[ja]
-    response = sc_f.reshape(-1)[j] / denom
+    response = sc_f.reshape(-1)[j].astype(jnp.float32) / denom
 
     # Covariance from the response distribution around the refined pose.
     n, st = spec.cov_points, spec.cov_stride
     lat = st * jnp.arange(-n, n + 1)
     lr, lc = jnp.meshgrid(lat, lat, indexing="ij")
     lat_shift = ((r1 + lr) * P + (c1 + lc)).reshape(-1)
-    resp_xy = _scores(grid.values, flat_f[ja][None, :], lat_shift, in_f[ja][None, :]) / denom
+    resp_xy = _scores(grid.values, flat_f[ja][None, :], lat_shift, in_f[ja][None, :]).astype(jnp.float32) / denom
     xy = jnp.stack([lc.reshape(-1), lr.reshape(-1)], -1).astype(jnp.float32) * res
     _, cov_xy = _response_moments(resp_xy, response, params.cov_response_drop, xy)
     cov_xy = cov_xy + jnp.eye(2) * (st * res) ** 2 / 12.0
-    resp_t = sc_f[:, js] / denom
+    resp_t = sc_f[:, js].astype(jnp.float32) / denom
     _, var_t = _response_moments(resp_t, response, params.cov_response_drop, fine[:, None] - theta)
     var_t = var_t[0, 0] + jnp.deg2rad(spec.fine_angle_step_deg) ** 2 / 12.0
     cov = jnp.zeros((3, 3)).at[:2, :2].set(cov_xy).at[2, 2].set(var_t)
@@ -226,7 +227,7 @@ def match_scan(
     tie = (sc_f == sc_f.reshape(-1)[j]).astype(jnp.float32)
     tie = tie / jnp.sum(tie)
     dd = d.astype(jnp.float32)
-    mean_r = r0 + jnp.sum(tie.sum(0).reshape(2 * R + 1, 2 * R + 1).sum(1) * dd)
-    mean_c = c0 + jnp.sum(tie.sum(0).reshape(2 * R + 1, 2 * R + 1).sum(0) * dd)
+    mean_r = r0.astype(jnp.float32) + jnp.sum(tie.sum(0).reshape(2 * R + 1, 2 * R + 1).sum(1) * dd)
+    mean_c = c0.astype(jnp.float32) + jnp.sum(tie.sum(0).reshape(2 * R + 1, 2 * R + 1).sum(0) * dd)
     pose = jnp.stack([prior[0] + mean_c * res, prior[1] + mean_r * res, jnp.sum(tie.sum(1) * fine)])
-    return MatchResult(pose, response, score / denom, cov, score, n_valid, expanded, exact)
+    return MatchResult(pose, response, score.astype(jnp.float32) / denom, cov, score, n_valid, expanded, exact)

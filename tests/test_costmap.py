@@ -2,6 +2,7 @@
 
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -70,7 +71,7 @@ def test_costmap_vmaps_over_robots_with_traced_params():
     grid = np.zeros((40, 40), np.int8)
     grid[20, 20] = 100
     params = jax.tree.map(lambda x: jnp.stack([x, x]), CostmapParams.default())
-    params = params.__class__(**{**vars(params), "inflation_radius": jnp.array([0.3, 0.7])})
+    params = eqx.tree_at(lambda p: p.inflation_radius, params, jnp.array([0.3, 0.7]))
     cost = jax.jit(jax.vmap(costmap_from_occupancy, in_axes=(None, None, 0)))(jnp.asarray(grid), 0.05, params)
     # 0.5 m from the obstacle: beyond 0.3 m inflation, inside 0.7 m.
     assert float(cost[0, 20, 30]) == 0.0

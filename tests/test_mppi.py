@@ -93,24 +93,15 @@ def test_reaches_goal_around_obstacle_without_touching_it(seed):
 def _stuck_run(grid, pose, n):
     params = mppi.MppiParams.default(n_samples=64, horizon=10, progress_timeout=1.0, recovery_time=0.5)
     path = jnp.broadcast_to(jnp.array([3.4, 3.4]), (8, 2))
-    inputs = mppi.MppiInputs(
-        pose=pose,
-        path=path,
-        path_valid=jnp.ones(8, bool),
-        goal=jnp.array([3.4, 3.4, 0.0]),
-        grid=grid,
-        key=None,
-    )
 
     def tick(state, k):  # the robot never moves, whatever it is told
-        state, out = mppi.step(params, state, _with_key(inputs, k))
+        inputs = mppi.MppiInputs(
+            pose=pose, path=path, path_valid=jnp.ones(8, bool), goal=jnp.array([3.4, 3.4, 0.0]), grid=grid, key=k
+        )
+        state, out = mppi.step(params, state, inputs)
         return state, (out.recovering, out.cmd)
 
     return jax.lax.scan(tick, mppi.init(params, pose), jax.random.split(jax.random.key(0), n))[1]
-
-
-def _with_key(inputs, k):
-    return mppi.MppiInputs(inputs.pose, inputs.path, inputs.path_valid, inputs.goal, inputs.grid, k)
 
 
 def test_stuck_robot_backs_up_or_turns():
@@ -148,7 +139,7 @@ def test_step_vmaps_over_robots():
     params = mppi.MppiParams.default(n_samples=32, horizon=8)
     poses = jnp.array([[0.6, 2.0, 0.0], [3.0, 3.0, 1.0], [1.0, 1.0, -1.0]])
     path = jnp.broadcast_to(jnp.linspace(jnp.array([0.6, 0.6]), jnp.array([3.4, 3.4]), 20), (3, 20, 2))
-    inputs = mppi.MppiInputs(
+    inputs = jax.vmap(mppi.MppiInputs)(  # one robot's inputs per call: its annotations hold
         poses,
         path,
         jnp.ones((3, 20), bool),
