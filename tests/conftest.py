@@ -52,9 +52,9 @@ def _exempt_from_strict_promotion():
 _exempt_from_strict_promotion()
 
 # Every jaxtyping annotation in jaxquad (array types, dtypes, and named shapes consistent within one call) and
-# every other annotation is checked at runtime by beartype. The hook must be installed before the first
-# `import jaxquad`.
-jaxtyping.install_import_hook(["jaxquad"], "beartype.beartype")
+# every other annotation is checked at runtime by beartype, with `float` accepting `int` as static type checkers
+# do (PEP 484's numeric tower). The hook must be installed before the first `import jaxquad`.
+jaxtyping.install_import_hook(["jaxquad"], "beartype.beartype(conf=beartype.BeartypeConf(is_pep484_tower=True))")
 
 
 @pytest.fixture(autouse=True, scope="module")

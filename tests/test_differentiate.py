@@ -75,7 +75,7 @@ def test_step_flags_and_nonpositive_dt():
 def test_vmap_and_grad_cutoff(run):
     t = jnp.arange(0.0, 0.5, DT)
     q = jnp.sin(5.0 * t)[:, None]
-    params = dif.DifferentiatorParams(jnp.array([5.0, 20.0]))
+    params = jax.vmap(dif.DifferentiatorParams)(jnp.array([5.0, 20.0]))
     qd = jax.vmap(run, in_axes=(0, None, None))(params, t, q)
     assert qd.shape == (2, t.size, 1)
     loss = lambda fc: jnp.sum(run(dif.DifferentiatorParams(fc), t, q) ** 2)

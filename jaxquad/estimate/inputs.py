@@ -23,19 +23,19 @@ CONTACT_SOURCES = ("truth", "sensor", "observer", "mixed")
 
 
 class RobotInputs(eqx.Module):
-    """One robot's log, in the robot model's joint and foot order (a fleet adds a leading axis)."""
+    """One robot's log, in the robot model's joint and foot order (a fleet adds a leading axis N)."""
 
-    dt: Float[Array, "T"]  # s since the previous sample (0 at sample 0), from float64 stamps
-    q: Float[Array, "T nu"]  # rad
-    qd: Float[Array, "T nu"]  # rad/s (NaN when the log has none)
-    tau: Float[Array, "T nu"]  # N m (NaN when the log has none)
-    gyro: Float[Array, "T 3"]  # rad/s, IMU frame
-    acc: Float[Array, "T 3"]  # m/s^2, IMU frame
-    quat_wxyz: Float[Array, "T 4"]  # world-from-base (identity when the log has none)
-    contact_weight: Float[Array, "T F"]  # in [0, 1] (truth/sensor contacts)
-    valid: Bool[Array, "T"]  # False where the log marks the robot invalid
-    p0_world_base: Float[Array, "3"]  # initial position, m
-    yaw0: Float[Array, ""]  # initial heading (rad) when the attitude comes from the filter
+    dt: Float[Array, "*N T"]  # s since the previous sample (0 at sample 0), from float64 stamps
+    q: Float[Array, "*N T nu"]  # rad
+    qd: Float[Array, "*N T nu"]  # rad/s (NaN when the log has none)
+    tau: Float[Array, "*N T nu"]  # N m (NaN when the log has none)
+    gyro: Float[Array, "*N T 3"]  # rad/s, IMU frame
+    acc: Float[Array, "*N T 3"]  # m/s^2, IMU frame
+    quat_wxyz: Float[Array, "*N T 4"]  # world-from-base (identity when the log has none)
+    contact_weight: Float[Array, "*N T F"]  # in [0, 1] (truth/sensor contacts)
+    valid: Bool[Array, "*N T"]  # False where the log marks the robot invalid
+    p0_world_base: Float[Array, "*N 3"]  # initial position, m
+    yaw0: Float[Array, "*N"]  # initial heading (rad) when the attitude comes from the filter
 
 
 @functools.lru_cache(maxsize=16)

@@ -122,30 +122,30 @@ class PipelineConfig:
 
 
 class Flags(eqx.Module):
-    """Per-sample flags (T,) of what was detected and handled."""
+    """Per-sample flags of what was detected and handled (leading axes B: time T, robots N)."""
 
-    bad_joints: Bool[Array, "T"]  # some q (or qd) not finite: last value held
-    bad_imu: Bool[Array, "T"]  # gyro or attitude not finite: attitude held
-    bad_torque: Bool[Array, "T"]  # torque not finite or saturated: observer step skipped
-    gap: Bool[Array, "T"]  # dt > max_gap_s (or dt <= 0): not integrated
-    no_stance: Bool[Array, "T"]  # twist not observed: last good twist held
-    fallen: Bool[Array, "T"]  # tilted past fall_tilt_rad or marked invalid: pose held from here on
+    bad_joints: Bool[Array, "*B"]  # some q (or qd) not finite: last value held
+    bad_imu: Bool[Array, "*B"]  # gyro or attitude not finite: attitude held
+    bad_torque: Bool[Array, "*B"]  # torque not finite or saturated: observer step skipped
+    gap: Bool[Array, "*B"]  # dt > max_gap_s (or dt <= 0): not integrated
+    no_stance: Bool[Array, "*B"]  # twist not observed: last good twist held
+    fallen: Bool[Array, "*B"]  # tilted past fall_tilt_rad or marked invalid: pose held from here on
 
 
 class Estimate(eqx.Module):
-    """Per-sample outputs of one robot (leading time axis T)."""
+    """Per-sample outputs of one robot (leading axes B: time T once scanned, robots N once vmapped)."""
 
-    p_world_base: Float[Array, "T 3"]
-    q_world_base: Float[Array, "T 4"]  # w x y z
-    v_base: Float[Array, "T 3"]  # m/s, base frame
-    omega_base: Float[Array, "T 3"]  # rad/s, base frame
-    contact: Bool[Array, "T F"]
-    contact_soft: Float[Array, "T F"]  # observer's soft contact; the input weight otherwise
-    force_z: Float[Array, "T F"]  # observer force (N), 0 for truth/sensor contacts
-    force_z_filtered: Float[Array, "T F"]
-    qd: Float[Array, "T nu"]  # joint velocities used
-    cov_v_base: Float[Array, "T 3 3"]  # (m/s)^2: covariance of the twist's v_base (that sample's solve)
-    slip: Bool[Array, "T F"]  # stance feet the robust twist flagged as slipping
+    p_world_base: Float[Array, "*B 3"]
+    q_world_base: Float[Array, "*B 4"]  # w x y z
+    v_base: Float[Array, "*B 3"]  # m/s, base frame
+    omega_base: Float[Array, "*B 3"]  # rad/s, base frame
+    contact: Bool[Array, "*B F"]
+    contact_soft: Float[Array, "*B F"]  # observer's soft contact; the input weight otherwise
+    force_z: Float[Array, "*B F"]  # observer force (N), 0 for truth/sensor contacts
+    force_z_filtered: Float[Array, "*B F"]
+    qd: Float[Array, "*B nu"]  # joint velocities used
+    cov_v_base: Float[Array, "*B 3 3"]  # (m/s)^2: covariance of the twist's v_base (that sample's solve)
+    slip: Bool[Array, "*B F"]  # stance feet the robust twist flagged as slipping
     flags: Flags
 
 

@@ -47,8 +47,8 @@ def contact_scores(contact_est, contact_true, valid=None) -> dict:
         p, r = _ratio(tp, tp + fp), _ratio(tp, tp + fn)
         return p, r, _ratio(2 * p * r, p + r)
 
-    per_foot = [prf(*c) for c in zip(tp, fp, fn)]
-    p, r, f1 = prf(tp.sum(), fp.sum(), fn.sum())
+    per_foot = [prf(int(a), int(b), int(c)) for a, b, c in zip(tp, fp, fn)]
+    p, r, f1 = prf(int(tp.sum()), int(fp.sum()), int(fn.sum()))
     return {
         "precision": p,
         "recall": r,

@@ -15,7 +15,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from jaxquad.io.tum import TumTrajectory
 from jaxquad.metrics._align import ALIGN_MODES, align as align_poses
@@ -208,10 +208,10 @@ def evaluate(
 
 
 def evaluate_batch(
-    p_ref: Float[Array, "B N 3"],
-    q_ref_xyzw: Float[Array, "B N 4"],
-    p_est: Float[Array, "B N 3"],
-    q_est_xyzw: Float[Array, "B N 4"],
+    p_ref: Float[ArrayLike, "B N 3"],
+    q_ref_xyzw: Float[ArrayLike, "B N 4"],
+    p_est: Float[ArrayLike, "B N 3"],
+    q_est_xyzw: Float[ArrayLike, "B N 4"],
     deltas: Sequence[float] = (2.0, 5.0, 10.0),
     *,
     align: str = "se3",

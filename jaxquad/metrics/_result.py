@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
@@ -44,12 +45,11 @@ class EvalResult(eqx.Module):
 
     @property
     def ok(self) -> np.ndarray:
-        return np.asarray(self.ok_align) & np.all(np.asarray(self.ok_rpe), axis=-1)
+        return np.asarray(np.asarray(self.ok_align) & np.all(np.asarray(self.ok_rpe), axis=-1))
 
     def rpe_at(self, k: int) -> Stats:
         """RPE statistics of the k-th delta."""
-        take = lambda a: np.asarray(a)[..., k]
-        return Stats(*(take(getattr(self.rpe, f)) for f in ("rmse", "mean", "median", "std", "min", "max", "n")))
+        return jax.tree.map(lambda a: a[..., k], self.rpe)
 
     def to_dict(self) -> dict:
         """Dict of keys ate, are, are_deg, ape, ape_rotation_part, rpe_<delta><unit>, drift_pct,
@@ -64,7 +64,7 @@ class EvalResult(eqx.Module):
         }
         deltas = np.asarray(self.deltas).reshape(-1, np.shape(self.deltas)[-1])[0]
         for k, d in enumerate(deltas):
-            out[delta_key(d, self.delta_unit)] = {
+            out[delta_key(float(d), self.delta_unit)] = {
                 **self.rpe_at(k).to_dict(),
                 "n_pairs": np.asarray(self.rpe.n)[..., k].tolist(),
             }

@@ -54,8 +54,9 @@ def pairs_by_path_all(
     gap = lambda j: jnp.abs((dist[j] - dist[i]) - delta_m)
     # dist is non-decreasing, so the nearest j is at the crossing of dist[i] + delta_m or one before;
     # within a run of equal distances the first index wins, as in an argmin.
-    k = jnp.clip(jnp.searchsorted(dist, dist[i] + delta_m, side="left"), i + 1, n - 1)
-    first_equal = lambda j: jnp.maximum(jnp.searchsorted(dist, dist[j], side="left"), i + 1)
+    # searchsorted returns int32, the indices i may be int64 (float64 evaluations).
+    k = jnp.clip(jnp.searchsorted(dist, dist[i] + delta_m, side="left").astype(i.dtype), i + 1, n - 1)
+    first_equal = lambda j: jnp.maximum(jnp.searchsorted(dist, dist[j], side="left").astype(i.dtype), i + 1)
     before = first_equal(jnp.maximum(k - 1, i + 1))
     at = first_equal(k)
     j = jnp.where(gap(before) <= gap(at), before, at)
@@ -64,7 +65,7 @@ def pairs_by_path_all(
 
 def pairs_by_frames(n: int, delta: Int[Array, ""], all_pairs: bool = False) -> Pairs:
     """Pairs delta indices apart: (0, d), (d, 2d), ... or, with all_pairs, (i, i + d) for every i."""
-    m = jnp.arange(n - 1)
+    m = jnp.arange(n - 1, dtype=delta.dtype)
     i = m if all_pairs else m * delta
     j = i + delta
     mask = (j < n) & (delta >= 1)

@@ -22,12 +22,12 @@ class Messages:
         self.types = self.store.types
         self._seq = "seq" in dict(self.store.fielddefs["std_msgs/msg/Header"][1])
 
-    def time(self, t_ns: int):
+    def time(self, t_ns: int | np.integer):
         return self.types["builtin_interfaces/msg/Time"](
             sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000)
         )
 
-    def header(self, t_ns: int, frame: str):
+    def header(self, t_ns: int | np.integer, frame: str):
         extra = {"seq": 0} if self._seq else {}
         return self.types["std_msgs/msg/Header"](**extra, stamp=self.time(t_ns), frame_id=frame)
 
@@ -43,7 +43,7 @@ class Messages:
             position=self.vector3(p, "Point"), orientation=self.quaternion(q_wxyz)
         )
 
-    def transform(self, t_ns: int, parent: str, child: str, p, q_wxyz):
+    def transform(self, t_ns: int | np.integer, parent: str, child: str, p, q_wxyz):
         tf = self.types["geometry_msgs/msg/Transform"](translation=self.vector3(p), rotation=self.quaternion(q_wxyz))
         return self.types["geometry_msgs/msg/TransformStamped"](header=self.header(t_ns, parent), child_frame_id=child,
                                                                 transform=tf)  # fmt: skip
@@ -63,7 +63,7 @@ class BagWriter:
     def __init__(self, writer, msgs: Messages):
         self.writer, self.msgs, self.conns = writer, msgs, {}
 
-    def write(self, topic: str, msgtype: str, t_ns: int, msg) -> None:
+    def write(self, topic: str, msgtype: str, t_ns: int | np.integer, msg) -> None:
         if topic not in self.conns:
             self.conns[topic] = self.writer.add_connection(topic, msgtype, typestore=self.msgs.store)
         self.writer.write(self.conns[topic], int(t_ns), self.msgs.serialize(msg, msgtype))

@@ -6,6 +6,7 @@ import dataclasses
 import time
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from jaxquad.io.g2o import G2oGraph
@@ -45,7 +46,7 @@ def optimize_g2o(
     """(optimized graph, solve info as plain numbers, {"compile_s", "solve_s"}). Runs in the current
     dtype setting (call inside `jax.enable_x64(True)` for float64, as the CLI does)."""
     graph = g2o_pose_graph(g2o, robust, robust_edges)
-    params = SolverParams(max_iterations=np.asarray(max_iterations), robust_width=np.asarray(robust_width))
+    params = SolverParams(max_iterations=jnp.asarray(max_iterations), robust_width=jnp.asarray(robust_width))
     t0 = time.perf_counter()
     compiled = _optimize.lower(graph, params).compile()
     compile_s = time.perf_counter() - t0

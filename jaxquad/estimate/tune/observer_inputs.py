@@ -34,11 +34,11 @@ from jaxquad.estimate.inputs import R_base_imu, full_state, gaps, robot_inputs, 
 class ObserverInputs(eqx.Module):
     """Observer inputs of one robot per sample (a fleet adds a leading robot axis N)."""
 
-    p: Float[Array, "T n"]  # generalized momentum M v (n = nv, or nu for the joint rows)
-    tau_bar: Float[Array, "T n"]  # S^T tau + C^T v - g (+ passive joint forces)
-    J_z: Float[Array, "T R n"]  # world rows of the foot Jacobians (m per unit of qvel), `axes` per foot
-    dt: Float[Array, "T"]  # s; NaN where the step is skipped (first sample, gap, bad torque)
-    restart: Bool[Array, "T"]  # p_hat restarts at p (first sample, after a gap)
+    p: Float[Array, "*N T n"]  # generalized momentum M v (n = nv, or nu for the joint rows)
+    tau_bar: Float[Array, "*N T n"]  # S^T tau + C^T v - g (+ passive joint forces)
+    J_z: Float[Array, "*N T R n"]  # world rows of the foot Jacobians (m per unit of qvel), `axes` per foot
+    dt: Float[Array, "*N T"]  # s; NaN where the step is skipped (first sample, gap, bad torque)
+    restart: Bool[Array, "*N T"]  # p_hat restarts at p (first sample, after a gap)
     axes: str = eqx.field(static=True, default="z")  # "z" (R = F) or "xyz" (R = 3 F, row 3 f + a)
 
     @property
@@ -49,9 +49,9 @@ class ObserverInputs(eqx.Module):
 class ContactTruth(eqx.Module):
     """Ground truth of one robot per sample (a fleet adds a leading robot axis N)."""
 
-    contact: Bool[Array, "T F"]
-    force_z: Float[Array, "T F"]  # N, world z on each foot
-    valid: Bool[Array, "T"]  # scored samples
+    contact: Bool[Array, "*N T F"]
+    force_z: Float[Array, "*N T F"]  # N, world z on each foot
+    valid: Bool[Array, "*N T"]  # scored samples
 
 
 @functools.lru_cache(maxsize=4)
