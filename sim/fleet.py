@@ -187,12 +187,12 @@ def build_fleet(config: FleetConfig, compile_chunk: bool = True) -> Fleet:
     noise = stack(S.SensorNoise.default())
     if config.randomize:
         noise = jax.vmap(S.SensorNoise.scaled)(noise, jnp.asarray(rng.uniform(0.5, 1.5, n), jnp.float32))
-    boxes = Boxes(
+    boxes = jax.vmap(Boxes)(  # one world per robot
         center=jnp.asarray(np.stack([worlds[w].center for w in which])),
         half=jnp.asarray(np.stack([worlds[w].half for w in which])),
         yaw=jnp.asarray(np.stack([worlds[w].yaw for w in which])),
     )
-    setup = RobotSetup(
+    setup = jax.vmap(RobotSetup)(  # every field carries the robot axis
         gait_params=stack(params),
         route_params=stack(RouteParams.default(v_route)),
         noise=noise,

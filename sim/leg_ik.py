@@ -19,23 +19,23 @@ _REACH_MARGIN = 1e-3
 
 
 class LegGeometry(eqx.Module):
-    """Leg kinematics in the trunk frame at zero joint angles (one row per leg, units m).
+    """Leg kinematics in the trunk frame at zero joint angles (one row per leg, units m; no leg axis under vmap).
 
     `axis_sign` is +1 where the joint turns about +x (abduction) or +y (thigh, knee), -1 where it
     turns about the negative axis. `knee_bend` picks the knee branch (+1/-1) of the nominal stand.
     """
 
-    p_trunk_hip: Float[Array, "L 3"]
-    d_hip_thigh: Float[Array, "L 3"]
-    d_thigh_knee: Float[Array, "L 3"]
-    d_knee_foot: Float[Array, "L 3"]
-    axis_sign: Float[Array, "L 3"]
-    knee_bend: Float[Array, " L"]
-    q_min: Float[Array, "L 3"]
-    q_max: Float[Array, "L 3"]
+    p_trunk_hip: Float[Array, "*L 3"]
+    d_hip_thigh: Float[Array, "*L 3"]
+    d_thigh_knee: Float[Array, "*L 3"]
+    d_knee_foot: Float[Array, "*L 3"]
+    axis_sign: Float[Array, "*L 3"]
+    knee_bend: Float[Array, "*L"]
+    q_min: Float[Array, "*L 3"]
+    q_max: Float[Array, "*L 3"]
 
 
-def leg_fk(geom: LegGeometry, q_leg: Float[Array, "L 3"]) -> Float[Array, "L 3"]:
+def leg_fk(geom: LegGeometry, q_leg: Float[Array, "*L 3"]) -> Float[Array, "*L 3"]:
     """Foot centres in the trunk frame for joint angles (abduction, thigh, knee) in rad."""
     angle = geom.axis_sign * q_leg
     w = geom.d_thigh_knee + SO3.from_y_radians(angle[..., 2]).apply(geom.d_knee_foot)
@@ -44,8 +44,8 @@ def leg_fk(geom: LegGeometry, q_leg: Float[Array, "L 3"]) -> Float[Array, "L 3"]
 
 
 def leg_ik(
-    geom: LegGeometry, p_trunk_foot: Float[Array, "L 3"]
-) -> tuple[Float[Array, "L 3"], Bool[Array, " L"]]:
+    geom: LegGeometry, p_trunk_foot: Float[Array, "*L 3"]
+) -> tuple[Float[Array, "*L 3"], Bool[Array, "*L"]]:
     """Joint angles (rad) placing each foot centre at `p_trunk_foot` (m, trunk frame).
 
     Targets out of reach are pulled onto the reachable shell along the same direction and the

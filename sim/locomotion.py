@@ -339,7 +339,7 @@ def gait_step(
     # Command: limits, stop-and-go, rate limits.
     t = t + params.time_offset  # desynchronizes the patterns of a fleet
     go = jnp.mod(t, params.stop_go_period) < params.stop_go_duty * params.stop_go_period
-    target = jnp.clip(command, -params.v_max, params.v_max) * go
+    target = jnp.where(go, jnp.clip(command, -params.v_max, params.v_max), 0.0)
     step = params.acc_max * dt
     cmd = state.cmd + jnp.clip(target - state.cmd, -step, step)
 
@@ -388,10 +388,10 @@ def gait_step(
     tau_pd = params.kp * (q_des - q) + params.kd * (qd_des - qd)
 
     # Gravity share through the stance legs: tau = J^T f, f the push of the foot on the ground.
-    n_stance = jnp.maximum(jnp.sum(stance), 1)
+    n_stance = jnp.maximum(jnp.sum(stance), 1).astype(jnp.float32)
     f_world = jnp.array([0.0, 0.0, -1.0]) * (params.weight_ff * gait.mass * _GRAVITY / n_stance)
     f_base = R_world_base.T @ f_world
-    f_trunk = jnp.where(on_spine, f_base @ R_spine, f_base) * stance[:, None]
+    f_trunk = jnp.where(stance[:, None], jnp.where(on_spine, f_base @ R_spine, f_base), 0.0)
     jac = jax.vmap(jax.jacfwd(leg_fk, argnums=1))(gait.legs, q)  # (4, 3 xyz, 3 joints)
     tau_ff = jnp.einsum("lij,li->lj", jac, f_trunk)
 

@@ -29,11 +29,14 @@ def _standard_promotion(fn):
 
 
 def _exempt_from_strict_promotion():
-    """jaxlie 1.5 (quaternion products and inverses multiply floats by int sign arrays) and MJX (e.g.
-    `1e-6 * (n == 0.0)` in its normalization) rely on implicit promotion internally: their functions and
-    methods run under standard promotion, everything of jaxquad's own under strict."""
+    """jaxlie 1.5 (quaternion products and inverses multiply floats by int sign arrays), MJX (e.g.
+    `1e-6 * (n == 0.0)` in its normalization) and optax's Adam (`b1 ** count`, count an int) rely on implicit
+    promotion internally: their functions and methods run under standard promotion, jaxquad's own code under
+    strict."""
+    import optax
     from jaxlie import _base
     from mujoco import mjx
+    from mujoco.mjx._src import support
 
     for cls in (_base.MatrixLieGroup, _base.SOBase, _base.SEBase, jaxlie.SO2, jaxlie.SO3, jaxlie.SE2, jaxlie.SE3):
         for name, attr in list(vars(cls).items()):
@@ -47,6 +50,13 @@ def _exempt_from_strict_promotion():
         attr = getattr(mjx, name)
         if not name.startswith("_") and inspect.isfunction(attr):
             setattr(mjx, name, _standard_promotion(attr))
+    support.contact_force = _standard_promotion(support.contact_force)  # used by sim, not re-exported by mjx
+
+    def adam(*args, **kwargs):
+        tx = optax_adam(*args, **kwargs)
+        return optax.GradientTransformation(_standard_promotion(tx.init), _standard_promotion(tx.update))
+
+    optax_adam, optax.adam = optax.adam, adam
 
 
 _exempt_from_strict_promotion()

@@ -11,7 +11,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
 from jaxquad.estimate import scores
 from jaxquad.estimate.pipeline import observer_params_for_axes, vertical_estimate
@@ -29,7 +29,13 @@ class Counts(eqx.Module):
     samples: Int[Array, ""]
 
 
-def _observer_scan(params: ObserverParams, inputs: ObserverInputs, carry0, reduce, truth: ContactTruth | None):
+def _observer_scan(
+    params: ObserverParams,
+    inputs: ObserverInputs,
+    carry0,
+    reduce,
+    truth: tuple[Bool[Array, "T F"], Float[Array, "T F"], Bool[Array, "T"]] | None,  # contact, force_z, valid
+):
     """lax.scan of the observer; reduce(carry, estimate, truth_k) -> (carry, output)."""
     observer = ContactObserver()
     row_params = observer_params_for_axes(params, inputs.axes)
@@ -64,8 +70,9 @@ def observer_counts(params: ObserverParams, inputs: ObserverInputs, truth: Conta
         hit, true = est.contact & valid, contact & valid
         err = jnp.where(valid, est.force_z_filtered - force_z, 0.0)
         return Counts(
-            tp=acc.tp + (hit & true), fp=acc.fp + (hit & ~true), fn=acc.fn + (~hit & true),
-            force_sq=acc.force_sq + err * err, samples=acc.samples + valid,
+            tp=acc.tp + (hit & true).astype(jnp.int32), fp=acc.fp + (hit & ~true).astype(jnp.int32),
+            fn=acc.fn + (~hit & true).astype(jnp.int32), force_sq=acc.force_sq + err * err,
+            samples=acc.samples + valid.astype(jnp.int32),
         ), None  # fmt: skip
 
     return _observer_scan(params, inputs, acc0, reduce, (truth.contact, truth.force_z, truth.valid))[0]
