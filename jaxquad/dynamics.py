@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 from jaxquad._mjx import mjx
 from jaxquad.kernels.lie import SO3
 
@@ -90,7 +90,7 @@ def _momentum_and_rate(m: mjx.Model, qpos: Array, qvel: Array) -> tuple[Array, A
 
 
 def integrate_pos(
-    m: mjx.Model, qpos: Float[Array, "nq"], qvel: Float[Array, "nv"], t: Float[Array, ""]
+    m: mjx.Model, qpos: Float[Array, "nq"], qvel: Float[Array, "nv"], t: Float[ArrayLike, ""]
 ) -> Float[Array, "nq"]:
     """q(t) for constant velocity qvel, as MuJoCo's `mj_integratePos` with step t (s).
 

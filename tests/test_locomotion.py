@@ -204,7 +204,7 @@ def test_mjx_batched_rollout_walks():
     def rollout(p, c):
         def body(carry, i):
             d, s = carry
-            s, u = gait_step(gait, p, s, d.qpos, d.qvel, c, i * dt, jnp.float32(dt))
+            s, u = gait_step(gait, p, s, d.qpos, d.qvel, c, i.astype(jnp.float32) * dt, jnp.float32(dt))
             d = mjx.step(model, d.replace(ctrl=u))
             return (d, s), (d.qpos, u)
 

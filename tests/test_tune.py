@@ -197,6 +197,67 @@ def test_observer_inputs_errors(robot, sims):
         tn.observer_inputs(robot, bad)
 
 
+def test_the_tuner_sees_the_pipelines_input_arrays(robot, sims):
+    """One path from a log to the estimators' inputs: the tuner's observer inputs are what the pipeline's
+    step builds from its own parsed log (`pipeline.inputs_from_log`): the same joints reordered by name,
+    attitude, gyro in the base frame, torque mask, restarts and skipped steps; only the base velocity
+    differs by design (ground truth here, the leg odometry's in the pipeline) and is given to both."""
+    from jaxquad import dynamics
+    from jaxquad.estimate import pipeline
+    from jaxquad.estimate.inputs import R_base_imu, full_state, gaps, torque_ok
+    from jaxquad.kernels.lie import SO3
+
+    s = {k: v[:10] for k, v in sims[1].items()}
+    perm = np.random.default_rng(3).permutation(robot.nu)  # the log lists joints in another order
+    log = {k: s[k].copy() for k in ("gyro", "acc", "quat_wxyz", "gt_pose", "gt_contact", "gt_force")}
+    log.update(q=s["q"][:, perm], qd=s["qd"][:, perm], tau=s["tau"][:, perm].copy(), t=s["t"] + 0.01,
+               joint_names=np.array(robot.joint_names)[perm])  # fmt: skip
+    log["t"][6:] += 0.2  # a gap before sample 6
+    log["tau"][3, 0], log["tau"][4, 5] = 1e3, np.nan  # a saturated and a missing torque
+    # The IMU's attitude, not gt_pose's: 0.1 rad off in roll and not of unit norm.
+    tilt = np.array([np.cos(0.05), np.sin(0.05), 0.0, 0.0])
+    log["quat_wxyz"] = 1.01 * np.asarray((SO3(jnp.asarray(s["quat_wxyz"])) @ SO3(jnp.asarray(tilt))).wxyz, np.float64)
+
+    params = pipeline.PipelineParams.default()
+    inputs, config = pipeline.inputs_from_log(robot, log, "mixed")
+    obs, truth, t = tn.observer_inputs(
+        robot, log, max_gap_s=float(params.max_gap_s), torque_saturation=float(params.torque_saturation),
+        axes=config.observer_axes, passive=config.observer_passive, rows=config.observer_rows,
+    )  # fmt: skip
+    one = jax.tree.map(lambda a: a[0], inputs)  # a single log is a fleet of one
+    np.testing.assert_array_equal(one.q, np.float32(s["q"]))  # back in the model's joint order
+    np.testing.assert_array_equal(truth.valid, inputs.valid)
+    np.testing.assert_array_equal(t, log["t"])
+
+    # The pipeline's step: restarts after the first sample and gaps, NaN dt where the step is skipped.
+    first, gap = gaps(one.dt, params.max_gap_s)
+    tau_ok = torque_ok(robot, one.tau, params.torque_saturation)
+    skipped = ~(tau_ok & ~gap & ~first)
+    assert int(first.sum()) == int(gap.sum()) == 1 and int((~tau_ok).sum()) == 2
+    np.testing.assert_array_equal(obs.restart[0], first | gap)
+    np.testing.assert_array_equal(np.isnan(obs.dt[0]), skipped)
+    np.testing.assert_array_equal(np.asarray(obs.dt[0])[~skipped], np.asarray(one.dt)[~skipped])
+
+    # ... and its momentum terms at the ground-truth velocity given to the tuner (backward differences).
+    v = np.diff(s["gt_pose"][:, :3], axis=0) / np.diff(log["t"])[:, None]
+    v = np.float32(np.concatenate([v[:1], v]))
+    R_imu = jnp.asarray(R_base_imu(robot), jnp.float32)
+    rows = np.asarray(robot.dof_adr)
+
+    def step_terms(p, quat, q, v_world, gyro_imu, qd, tau):
+        tau_obs = jnp.where(torque_ok(robot, tau, params.torque_saturation), tau, 0.0)
+        qpos, qvel = full_state(robot, p, quat / jnp.linalg.norm(quat), q, v_world, R_imu @ gyro_imu, qd)
+        p_mom, tau_bar, J_z = dynamics.momentum_terms(
+            robot, qpos, qvel, tau_obs, passive=config.observer_passive, axes=config.observer_axes
+        )
+        return p_mom[rows], tau_bar[rows], J_z[:, rows]
+
+    p_ref = jnp.asarray(s["gt_pose"][:, :3], jnp.float32)
+    ref = jax.jit(jax.vmap(step_terms))(p_ref, one.quat_wxyz, one.q, v, one.gyro, one.qd, one.tau)
+    for got, want in zip((obs.p[0], obs.tau_bar[0], obs.J_z[0]), ref):
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-4)
+
+
 def test_full_force_observer_recovers_vertical_forces_under_tangential_forces(robot):
     """Constant foot forces with friction-like tangential parts on a still Go2 (p = 0, so tau_bar =
     -J^T f): the x, y, z observer's z estimates converge to the true z forces; a z-only observer
