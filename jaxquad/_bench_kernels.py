@@ -52,7 +52,7 @@ def _observer_inputs(key, batch: int | None):
         J_z=0.3 * jax.random.normal(k[3], shape + (_N_FEET, _NV)),
     )
     legs = dict(
-        p_base_foot=jnp.array([0.19, 0.14, -0.27]) * jnp.array([[1, 1, 1], [1, -1, 1], [-1, 1, 1], [-1, -1, 1]])
+        p_base_foot=jnp.array([0.19, 0.14, -0.27]) * jnp.array([[1.0, 1.0, 1.0], [1.0, -1.0, 1.0], [-1.0, 1.0, 1.0], [-1.0, -1.0, 1.0]])
         + 0.03 * jax.random.normal(k[4], shape + (_N_FEET, 3)),
         v_base_foot=0.5 * jax.random.normal(k[5], shape + (_N_FEET, 3)),
         omega_imu=jax.random.normal(k[6], shape + (3,)),

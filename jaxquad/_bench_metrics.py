@@ -20,7 +20,7 @@ from pathlib import Path
 _DELTAS = ("2", "5", "10")
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
+def add_arguments(parser: argparse._ArgumentGroup) -> None:  # the bench command's group for this section
     parser.add_argument("--eval-poses", type=int, default=100_000, metavar="N",
                         help="poses of the trajectory for jaxquad eval vs evo (default: 100000)")
     parser.add_argument("--n-traj", type=int, default=64, metavar="N",

@@ -89,12 +89,12 @@ def _mppi_rows(args, grid, open_rc, batch: int) -> list[dict]:
     goal = pose + np.array([2.0, 1.0, 0.5], np.float32)
     path = pose[:, None, :2] + np.linspace(0.0, 1.0, 160)[None, :, None] * (goal - pose)[:, None, :2]
     cost = jax.jit(jax.vmap(lambda g: nav.cost_grid(nav.NavParams.default(), g, jnp.zeros(2), _RES).cost))(local)
-    inputs = mppi.MppiInputs(
+    inputs = jax.vmap(mppi.MppiInputs)(  # one robot's inputs per call
         pose=jnp.asarray(pose),
         path=jnp.asarray(path, jnp.float32),
         path_valid=jnp.ones((batch, 160), bool),
         goal=jnp.asarray(goal),
-        grid=CostGrid(
+        grid=jax.vmap(CostGrid)(
             cost=cost,
             origin=jnp.asarray(origin),
             resolution=jnp.full(batch, _RES, jnp.float32),

@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
+def add_arguments(parser: argparse._ArgumentGroup) -> None:  # the bench command's group for this section
     parser.add_argument(
         "--robots", type=int, nargs="+", metavar="N",
         help="fleet sizes for --sim (default: 1 64 on CPU, 1024 4096 16384 on GPU)",

@@ -13,7 +13,7 @@ import argparse
 import time
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
+def add_arguments(parser: argparse._ArgumentGroup) -> None:  # the bench command's group for this section
     parser.add_argument("--slam-nodes", type=int, nargs="+", default=[1000, 3500, 10000], metavar="N",
                         help="nodes of the single graphs timed against GTSAM (default: 1000 3500 10000)")
     parser.add_argument("--slam-batch", type=int, default=64, metavar="N",

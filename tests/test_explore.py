@@ -26,7 +26,7 @@ def _two_rooms():
 
 def _reveal(known, truth, pose):
     h, w = truth.shape
-    rr, cc = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
+    rr, cc = jnp.meshgrid(jnp.arange(h, dtype=jnp.float32), jnp.arange(w, dtype=jnp.float32), indexing="ij")
     d2 = ((cc + 0.5) * RES - pose[0]) ** 2 + ((rr + 0.5) * RES - pose[1]) ** 2
     return jnp.where(d2 <= SENSOR_RANGE**2, truth, known)
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
 from jaxquad.estimate.scans import frame_samples
@@ -31,7 +33,7 @@ def stack_scans(per_robot: list) -> dict[str, np.ndarray]:
     return out
 
 
-def score_scans(log: dict, scans: dict, maps: list) -> dict:
+def score_scans(log: Mapping, scans: dict, maps: list) -> dict:
     """Agreement of scan end points with the ground-truth map (ground-truth camera pose), per band:
     % of valid rays ending in a cell within HIT_TOLERANCE of an occupied cell (`scan_map_hits`),
     % of rays with no reading,

@@ -77,7 +77,7 @@ def update(
     give_up = state.has_goal & (since > params.blacklist_timeout)
     rr, cc = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
     g = grid.cell_of(state.goal[:2])
-    disk = (rr - g[0]) ** 2 + (cc - g[1]) ** 2 <= (params.blacklist_radius / grid.resolution) ** 2
+    disk = ((rr - g[0]) ** 2 + (cc - g[1]) ** 2).astype(jnp.float32) <= (params.blacklist_radius / grid.resolution) ** 2
     blacklist = state.blacklist | (give_up & disk)
 
     weight = step_weights(grid.cost, params.cost_weight)

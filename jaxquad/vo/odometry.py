@@ -60,11 +60,12 @@ class VoParams(eqx.Module):
 
 
 class VoInputs(eqx.Module):
-    """One depth frame and what the other sensors say about the motion since the previous one."""
+    """One depth frame and what the other sensors say about the motion since the previous one (leading
+    axes B: frames, robots, when stacked for scan or vmap)."""
 
-    depth: Float[Array, "H W"]  # z-depth, m, 0 = invalid
-    R_prev_cur_gyro: Float[Array, "3 3"]  # camera rotation from the previous frame, integrated gyro
-    T_world_base_leg: Float[Array, "4 4"]  # leg-odometry pose at this frame
+    depth: Float[Array, "*B H W"]  # z-depth, m, 0 = invalid
+    R_prev_cur_gyro: Float[Array, "*B 3 3"]  # camera rotation from the previous frame, integrated gyro
+    T_world_base_leg: Float[Array, "*B 4 4"]  # leg-odometry pose at this frame
 
 
 class VoState(eqx.Module):
