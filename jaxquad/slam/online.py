@@ -105,16 +105,16 @@ class SlamParams(eqx.Module):
 
 
 class SlamInputs(eqx.Module):
-    """One scan with its odometry and (optional) leg odometry."""
+    """One scan with its odometry and (optional) leg odometry (leading axes B: robots, scans, when stacked)."""
 
-    t: Float[Array, ""]  # s
-    odom: Float[Array, "3"]  # odometry pose of the base x, y (m), theta (rad)
-    ranges: Float[Array, " b"]  # m; +inf: no return; NaN: invalid
-    valid: Bool[Array, " b"]
-    lo_pose: Float[Array, "3"]  # leg-odometry pose of the base (its own frame)
-    lo_twist: Float[Array, "3"]  # leg-odometry vx, vy (m/s, base frame), yaw rate (rad/s)
-    lo_twist_cov: Float[Array, "3 3"]  # covariance of lo_twist
-    lo_valid: Bool[Array, ""]  # leg odometry available at this scan
+    t: Float[Array, "*B"]  # s
+    odom: Float[Array, "*B 3"]  # odometry pose of the base x, y (m), theta (rad)
+    ranges: Float[Array, "*B b"]  # m; +inf: no return; NaN: invalid
+    valid: Bool[Array, "*B b"]
+    lo_pose: Float[Array, "*B 3"]  # leg-odometry pose of the base (its own frame)
+    lo_twist: Float[Array, "*B 3"]  # leg-odometry vx, vy (m/s, base frame), yaw rate (rad/s)
+    lo_twist_cov: Float[Array, "*B 3 3"]  # covariance of lo_twist
+    lo_valid: Bool[Array, "*B"]  # leg odometry available at this scan
 
 
 class SlamState(eqx.Module):
@@ -324,7 +324,7 @@ def _close_loop(spec: SlamSpec, params: SlamParams, state: SlamState, j, respons
     state = eqx.tree_at(
         lambda s: (s.graph, s.loops, s.map_stale),
         state,
-        (graph, state.loops + cand.accept, state.map_stale | cand.accept),
+        (graph, state.loops + cand.accept.astype(state.loops.dtype), state.map_stale | cand.accept),
     )
     return state, response, cand.accept, jnp.where(cand.accept, cand.i, -1)
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxquad.io import G2oGraph, TumTrajectory, save_map, write_g2o, write_tum
-from jaxquad.kernels.occupancy import GridSpec, OccupancyGrid
+from jaxquad.kernels.occupancy import GridSpec
 from jaxquad.slam import online
 from jaxquad.slam.mapping import to_occupancy_map
 
@@ -92,7 +92,7 @@ def robot_report(
 
         from jaxquad.metrics import map_scores
 
-        rep["map_scores"] = asdict(map_scores(to_occupancy_map(spec.grid, _grid(state)), true_map))
+        rep["map_scores"] = asdict(map_scores(to_occupancy_map(spec.grid, state.grid), true_map))
     return rep
 
 
@@ -103,15 +103,11 @@ def robot_slice(tree, i: int):
     return jax.tree.map(lambda a: a[i], tree)
 
 
-def _grid(state) -> OccupancyGrid:
-    return OccupancyGrid(np.asarray(state.grid.log_odds), np.asarray(state.grid.observed))
-
-
 def write_robot(folder: Path, grid: GridSpec, t: np.ndarray, state, out, final: np.ndarray) -> None:
     """One robot's files into `folder` (which exists)."""
     write_tum(folder / "trajectory.tum", tum_of(t, np.asarray(out.pose)), header="online SLAM pose at each scan")
     write_tum(folder / "trajectory_final.tum", tum_of(t, final), header="SLAM pose at each scan, last optimization")
-    save_map(folder / "map.yaml", to_occupancy_map(grid, _grid(state)))
+    save_map(folder / "map.yaml", to_occupancy_map(grid, state.grid))
     write_g2o(folder / "graph.g2o", graph_of(state))
 
 
@@ -127,7 +123,7 @@ def draw_map_vs_truth(path: Path, grid: GridSpec, state, final: np.ndarray, odom
     from jaxquad.io.atomic import atomic_open
     from jaxquad.metrics import resample_map
 
-    est = to_occupancy_map(grid, _grid(state))
+    est = to_occupancy_map(grid, state.grid)
     fig, axes = plt.subplots(1, 2, figsize=(13, 6), constrained_layout=True)
     res, ox, oy = true_map.resolution, true_map.origin[0], true_map.origin[1]
     extent = [ox, ox + true_map.grid.shape[1] * res, oy, oy + true_map.grid.shape[0] * res]
