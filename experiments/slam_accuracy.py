@@ -71,8 +71,8 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list) -> dict:
         final = final_poses(state, out)
         reps = [robot_report(spec, t, robot_slice(state, i), robot_slice(out, i), final[i], x, i,
                              maps[world_index[i] % len(maps)]) for i in range(args.robots)]  # fmt: skip
-        ate = lambda which: [r["scores"][which].get("ate", {}).get("rmse") for r in reps]  # noqa: E731
-        ms = lambda key: [r["map_scores"][key] for r in reps]  # noqa: E731
+        ate = lambda which, reps=reps: [r["scores"][which].get("ate", {}).get("rmse") for r in reps]  # noqa: E731
+        ms = lambda key, reps=reps: [r["map_scores"][key] for r in reps]  # noqa: E731
         rows.append(f"| {robot} | {world} | {lo} | {_stats(ate('odometry'))} | {_stats(ate('online'))} | "
                     f"{_stats(ate('final'))} | {_stats(ms('iou'))} | {_stats(ms('precision'))} | "
                     f"{_stats(ms('recall'))} | {np.mean([r['loop_closures'] for r in reps]):.1f} | {wall:.1f} |")  # fmt: skip

@@ -57,10 +57,7 @@ def likelihood_field(
     if surfaces:
         p = np.pad(occupied, 1, constant_values=False)
         occupied = occupied & ~(p[:-2, 1:-1] & p[2:, 1:-1] & p[1:-1, :-2] & p[1:-1, 2:])
-    if occupied.any():
-        dist = distance_transform_edt(~occupied) * resolution
-    else:
-        dist = np.full(grid.shape, max_dist)
+    dist = distance_transform_edt(~occupied) * resolution if occupied.any() else np.full(grid.shape, max_dist)
     free = (grid >= 0) & (grid <= 100 - _OCCUPIED)  # known and clearly free (occupancy < 0.35)
     if not free.any():
         raise ValueError("occupancy grid has no free cell to place particles in")

@@ -74,7 +74,7 @@ def f(tmp_path_factory) -> dict[str, str]:
                 d / "topics.yaml")  # fmt: skip
     (d / "empty.bag").write_bytes(b"")
     (d / "text.bag").write_text("not a bag\n")
-    for name, bad in (("res_empty", "a.npz"), ("res_text", "a_scans.npz"), ("res_keys", "a_scans.npz")):
+    for name in ("res_empty", "res_text", "res_keys"):
         (d / name).mkdir()
         write_tum(d / name / "a.tum", traj)
     (d / "res_empty" / "a.npz").write_bytes(b"")

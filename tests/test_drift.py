@@ -205,7 +205,7 @@ def test_batched_float32_matches_single_float64():
         batch.drift.trans_pct.dtype == np.float32
         and batch.drift.trans_pct.shape == (3,)
     )
-    for k, tr in enumerate(trajs):
+    for k in range(len(trajs)):
         single = evaluate_drift(*(a[k].astype(np.float64) for a in arrays))
         np.testing.assert_array_equal(
             np.asarray(batch.drift.n_segments_per_length)[k],

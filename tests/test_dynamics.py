@@ -8,6 +8,7 @@ vmapped function once, which keeps the module's compile time small.
 """
 
 import copy
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -353,7 +354,7 @@ def test_foot_positions_match_pytorch_kinematics(name, case, go2_case):
     pk_mjcf.JOINT_TYPE_MAP.clear()
     pk_mjcf.JOINT_TYPE_MAP.update(table)
     base = robot.mj_model.body(robot.base_body_id).name
-    chain = pk.build_chain_from_mjcf(open(robot.path).read(), body=base).to(dtype=torch.float64)
+    chain = pk.build_chain_from_mjcf(Path(robot.path).read_text(), body=base).to(dtype=torch.float64)
     names = chain.get_joint_parameter_names()
     assert sorted(names) == sorted(robot.joint_names)
     for i in range(N_STATES):

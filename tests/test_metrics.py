@@ -91,7 +91,7 @@ def _assert_like_evo(ours, theirs, n, deltas, unit):
     for key in APE_RELATIONS:
         for s in STATS:
             np.testing.assert_allclose(d[key][s], theirs[key].stats[s], rtol=RTOL, atol=ATOL, err_msg=f"{key} {s}")
-    for k, delta in enumerate(deltas):
+    for delta in deltas:
         key = f"rpe_{delta:g}{'m' if unit == 'm' else 'frames'}"
         assert d[key]["n_pairs"] == theirs[delta].np_arrays["error_array"].size
         for s in STATS:

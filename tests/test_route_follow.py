@@ -56,7 +56,7 @@ def test_vmapped_matches_single_and_bad_pose_flagged():
     new, (cmd, valid) = jax.jit(jax.vmap(route_step, in_axes=(None, 0, None, 0)))(params, states, wp, poses)
     single = jax.jit(route_step)
     for i in range(2):
-        s_i = jax.tree.map(lambda x: x[i], states)
+        s_i = jax.tree.map(lambda x, i=i: x[i], states)
         n_i, (c_i, v_i) = single(params, s_i, wp, poses[i])
         np.testing.assert_allclose(cmd[i], c_i, atol=1e-6)
         assert bool(v_i) and int(new.target[i]) == int(n_i.target)

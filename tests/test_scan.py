@@ -218,7 +218,7 @@ def test_vmap_over_images_matches_single_calls_and_grad_is_finite():
             one = single(depth[i], small_K, roll[i], pitch[i], 6)
             np.testing.assert_allclose(batch.ranges[i], one.ranges, rtol=1e-6)
 
-        def loss(d, r, p):
+        def loss(d, r, p, kernel=kernel):
             ranges = kernel(d, small_K, r, p, 6).ranges
             return jnp.sum(jnp.where(jnp.isfinite(ranges), ranges, 0.0))
 

@@ -181,7 +181,7 @@ def read_carmen(path: str | os.PathLike, flaser_fov_deg: float = 180.0) -> Laser
     if not rows:
         raise ValueError(f"{path}: no FLASER or ROBOTLASER1 scans")
     n0, bearings0 = len(rows[0][1]), rows[0][3]
-    for t, r, _, b, _, where in rows:
+    for _, r, _, b, _, where in rows:
         if len(r) != n0 or not np.allclose(b, bearings0):
             raise ValueError(f"{where}: {tag} scan has {len(r)} beams or other angles than the first scan ({n0})")
     scan_t = np.array([row[0] for row in rows])

@@ -108,7 +108,7 @@ def read_observer_params(path: str | os.PathLike, n_feet: int = 4, mode: str = "
         if key == "mode":
             continue
         a = _number_array(path, key, value, n_feet)
-        params = eqx.tree_at(lambda p: getattr(p, key), params, jnp.asarray(a, jnp.float32))
+        params = eqx.tree_at(lambda p, key=key: getattr(p, key), params, jnp.asarray(a, jnp.float32))
     if np.any(np.asarray(params.threshold_off) > np.asarray(params.threshold_on)):
         raise ValueError(f"params file {path}: threshold_off must not exceed threshold_on on any foot")
     return params

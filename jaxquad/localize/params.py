@@ -64,7 +64,9 @@ def _read(path: Path) -> dict:
         raw = yaml.safe_load(text)
     except yaml.YAMLError as e:
         line = getattr(getattr(e, "problem_mark", None), "line", None)
-        raise ValueError(f"params file {path}: not valid YAML" + (f" (line {line + 1})" if line is not None else ""))
+        raise ValueError(
+            f"params file {path}: not valid YAML" + (f" (line {line + 1})" if line is not None else "")
+        ) from None
     raw = {} if raw is None else raw
     # A Nav2 file nests its values under amcl: ros__parameters:.
     if isinstance(raw, dict) and isinstance(raw.get("amcl"), dict):

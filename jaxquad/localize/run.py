@@ -82,7 +82,7 @@ def localize_scans(
         b = np.broadcast_to(bearings, r.shape)
         inputs = AmclInputs(jnp.asarray(o, jnp.float32), jnp.asarray(r, jnp.float32), jnp.asarray(b, jnp.float32), k)
         states, out = _run_chunk(params, field, states, inputs)
-        outs.append(jax.tree.map(lambda x: np.asarray(x)[:, : stop - start], out))
+        outs.append(jax.tree.map(lambda x, n=stop - start: np.asarray(x)[:, :n], out))
         if progress is not None:
             progress(stop, f)
     return jax.tree.map(lambda *xs: np.concatenate(xs, 1), *outs)

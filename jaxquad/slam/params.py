@@ -33,7 +33,9 @@ def _read(path: Path) -> dict:
         raw = yaml.safe_load(path.read_text())
     except yaml.YAMLError as e:
         line = getattr(getattr(e, "problem_mark", None), "line", None)
-        raise ValueError(f"params file {path}: not valid YAML" + (f" (line {line + 1})" if line is not None else ""))
+        raise ValueError(
+            f"params file {path}: not valid YAML" + (f" (line {line + 1})" if line is not None else "")
+        ) from None
     raw = {} if raw is None else raw
     if not isinstance(raw, dict):
         raise ValueError(f"params file {path}: expected a mapping of SLAM parameters")

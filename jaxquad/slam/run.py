@@ -103,7 +103,7 @@ def run_fleet(spec: online.SlamSpec, params: online.SlamParams, x: dict, progres
     for start in range(0, S, CHUNK):
         stop = min(start + CHUNK, S)
         states, out = chunk(params, states, _inputs(x, start, stop, CHUNK))
-        outs.append(jax.tree.map(lambda a: np.asarray(a)[:, : stop - start], out))
+        outs.append(jax.tree.map(lambda a, n=stop - start: np.asarray(a)[:, :n], out))
         if progress is not None:
             progress(stop, S)
     online_states = jax.tree.map(np.asarray, states)

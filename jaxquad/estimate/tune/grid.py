@@ -104,9 +104,10 @@ def grid_counts(
     parts = []
     for start in range(0, c, chunk):
         index = np.minimum(np.arange(start, start + chunk), c - 1)
-        part = parallel.place(jax.tree.map(lambda a: a[index], params), mesh)
+        part = parallel.place(jax.tree.map(lambda a, index=index: a[index], params), mesh)
         out = parallel.gather(_sharded_counts(mesh)(part, *shared))
-        parts.append(jax.tree.map(lambda a: np.asarray(a)[: min(chunk, c - start)], out))
+        n = min(chunk, c - start)
+        parts.append(jax.tree.map(lambda a, n=n: np.asarray(a)[:n], out))
         if progress is not None:
             progress(min(start + chunk, c), c)
     return jax.tree.map(lambda *a: np.concatenate(a), *parts)

@@ -108,7 +108,7 @@ def observer_inputs(
         piece = [a[start : start + chunk] for a in flat]
         pad = chunk - piece[0].shape[0]
         piece = [np.pad(a, ((0, pad), (0, 0)), mode="edge") for a in piece]  # one compiled size
-        parts.append(jax.tree.map(lambda a: np.asarray(a)[: chunk - pad], fn(*piece)))
+        parts.append(jax.tree.map(lambda a, n=chunk - pad: np.asarray(a)[:n], fn(*piece)))
     p, tau_bar, J_z = (np.concatenate(x).reshape(n, T, *x[0].shape[1:]) for x in zip(*parts))
     if rows == "joints":
         dofs = np.asarray(robot.dof_adr)
