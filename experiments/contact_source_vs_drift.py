@@ -48,7 +48,9 @@ def _tune(log_path: Path, params_path: Path, grid_size: int) -> dict:
     log = load_log(log_path)
     robot = load(str(np.asarray(log["robot"])))
     inputs, truth, t = T.observer_inputs(robot, log)
-    params, summary = T.tune_fleet("grid", inputs, truth, t, mode="mixed", holdout=0.0, spec=T.GridSpec.default(grid_size))
+    params, summary = T.tune_fleet(
+        "grid", inputs, truth, t, mode="mixed", holdout=0.0, spec=T.GridSpec.default(grid_size)
+    )
     T.save_params(params_path, params, header=f"grid-tuned on {log_path}")
     return summary
 
@@ -78,9 +80,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--robot", action="append", choices=["go2", "badger"], help="robot(s) (default both)")
     parser.add_argument("--style", action="append", choices=["calm", "aggressive"], help="style(s) (default both)")
-    parser.add_argument("--tuned", action="append", default=[], metavar="ROBOT=PATH", help="params file from jaxquad tune")
+    parser.add_argument(
+        "--tuned", action="append", default=[], metavar="ROBOT=PATH", help="params file from jaxquad tune"
+    )
     parser.add_argument("--grid-size", type=int, default=3, help="grid points per axis when tuning here (default 3)")
-    parser.add_argument("--out", default=None, help="keep logs, estimates and tuned params here (default: a temporary folder)")
+    parser.add_argument(
+        "--out", default=None, help="keep logs, estimates and tuned params here (default: a temporary folder)"
+    )
     args = parser.parse_args(argv)
     if args.robots < 1 or not args.seconds > 0:
         parser.error("--robots must be >= 1 and --seconds positive")
@@ -96,10 +102,14 @@ def main(argv: list[str] | None = None) -> int:
     from jaxquad.estimate.run import run_estimate
 
     print(f"command: {shlex.join([sys.executable, *sys.argv])}")
-    print(f"machine: {platform.node()}, {platform.platform()}, {os.cpu_count()} CPUs, jax {jax.__version__} on "
-          f"{jax.devices()[0].platform}")  # fmt: skip
-    print(f"fleets: {args.robots} robots x {args.seconds:g} s in the house world, seed {args.seed}; "
-          f"scores are means over each fleet's robots\n")  # fmt: skip
+    print(
+        f"machine: {platform.node()}, {platform.platform()}, {os.cpu_count()} CPUs, jax {jax.__version__} on "
+        f"{jax.devices()[0].platform}"
+    )
+    print(
+        f"fleets: {args.robots} robots x {args.seconds:g} s in the house world, seed {args.seed}; "
+        f"scores are means over each fleet's robots\n"
+    )
     t_start = time.perf_counter()
     work = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="contact_source_vs_drift."))
     rows = []
@@ -118,13 +128,23 @@ def main(argv: list[str] | None = None) -> int:
                 contacts = "mixed" if source == "tuned" else source
                 s = run_estimate(log_path, folder / f"estimate_{source}", contacts, params[source])
                 fallen = sum(r["fallen"] for r in s["robots"])
-                rows.append((robot, style, source + (f" ({note})" if source == "tuned" else ""),
-                             _mean(s["robots"], "contacts", "f1"), _drift(s["robots"]),
-                             _mean(s["robots"], "drift", "z_error_final_m"), _mean(s["robots"], "trajectory", "ate", "rmse"),
-                             f"{len(s['robots'])} ({fallen})"))  # fmt: skip
+                rows.append(
+                    (
+                        robot,
+                        style,
+                        source + (f" ({note})" if source == "tuned" else ""),
+                        _mean(s["robots"], "contacts", "f1"),
+                        _drift(s["robots"]),
+                        _mean(s["robots"], "drift", "z_error_final_m"),
+                        _mean(s["robots"], "trajectory", "ate", "rmse"),
+                        f"{len(s['robots'])} ({fallen})",
+                    )
+                )
             print(f"[{robot} {style}: {time.perf_counter() - t0:.0f} s]", file=sys.stderr, flush=True)
 
-    print("| robot | style | contacts | contact F1 | drift % (2-10 m segments) | z error at end m | ATE m | robots (fallen) |")
+    print(
+        "| robot | style | contacts | contact F1 | drift % (2-10 m segments) | z error at end m | ATE m | robots (fallen) |"
+    )
     print("|---|---|---|---:|---:|---:|---:|---:|")
     for robot, style, source, f1, dh, dz, ate, n in rows:
         print(f"| {robot} | {style} | {source} | {f1:.3f} | {dh:.1f} | {dz:+.2f} | {ate:.3f} | {n} |")

@@ -88,18 +88,13 @@ def run(log_path: str, contacts: str, variant: str, params_path: str | None) -> 
     inputs, config = pipeline.inputs_from_log(robot, log, contacts)
     config = dataclasses.replace(config, **VARIANTS[variant])
     params = load_params(params_path, len(robot.foot_names), contacts)
-    out = jax.tree.map(
-        np.asarray, pipeline.estimate_fleet(robot, config, params, inputs)
-    )
+    out = jax.tree.map(np.asarray, pipeline.estimate_fleet(robot, config, params, inputs))
     t = np.asarray(log["t"], np.float64)
     rows = []
     for i in range(out.p_world_base.shape[0]):
         if bool(np.asarray(log["fallen"])[i]):
             continue
-        est = {
-            k: getattr(out, k)[i]
-            for k in ("p_world_base", "q_world_base", "v_base", "cov_v_base")
-        }
+        est = {k: getattr(out, k)[i] for k in ("p_world_base", "q_world_base", "v_base", "cov_v_base")}
         est["no_stance"] = out.flags.no_stance[i]
         valid = ~out.flags.fallen[i]
         rows.append(score_robot(t, est, np.asarray(log["gt_pose"])[i], valid))
@@ -134,9 +129,7 @@ def main(argv=None) -> int:
         choices=list(VARIANTS),
         help="default: all",
     )
-    ap.add_argument(
-        "--json", default=None, help="also write the rows to this JSON file"
-    )
+    ap.add_argument("--json", default=None, help="also write the rows to this JSON file")
     args = ap.parse_args(argv)
     import platform
     import shlex
@@ -144,8 +137,10 @@ def main(argv=None) -> int:
     import jax
 
     print(f"command: python {shlex.join(sys.argv)}")
-    print(f"machine: {platform.node()} {platform.processor() or platform.machine()}, jax {jax.__version__} on "
-          f"{jax.devices()[0].platform}\n")  # fmt: skip
+    print(
+        f"machine: {platform.node()} {platform.processor() or platform.machine()}, jax {jax.__version__} on "
+        f"{jax.devices()[0].platform}\n"
+    )
     keys = (
         "drift_pct",
         "endpoint_drift_pct",

@@ -40,10 +40,21 @@ def run_cell(args, robot: str, world: str, label: str) -> dict:
     outcome, elapsed, errors, compile_s, run_s, robot_s = [], [], [], 0.0, 0.0, 0.0
     for seed in range(args.seed, args.seed + args.worlds):
         cfg = NavConfig(
-            robot=robot, world=world, n_robots=args.robots, n_goals=args.goals, variant=variant, odometry=odometry,
-            scans=scans, style=args.style, seed=seed, particles=args.particles, samples=args.samples,
-            horizon=args.horizon, max_seconds=args.max_seconds, trace_robots=8,
-        )  # fmt: skip
+            robot=robot,
+            world=world,
+            n_robots=args.robots,
+            n_goals=args.goals,
+            variant=variant,
+            odometry=odometry,
+            scans=scans,
+            style=args.style,
+            seed=seed,
+            particles=args.particles,
+            samples=args.samples,
+            horizon=args.horizon,
+            max_seconds=args.max_seconds,
+            trace_robots=8,
+        )
         t0 = time.perf_counter()
         result = navigate(cfg, progress=None)
         print(f"{robot} {world} {label} seed {seed}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
@@ -66,14 +77,20 @@ def run_cell(args, robot: str, world: str, label: str) -> dict:
     err = np.concatenate(errors)
     times = np.concatenate(elapsed)
     return {
-        "robot": robot, "world": world, "cell": label, "runs": int(outcome.shape[0]), "goals": int(outcome.size),
+        "robot": robot,
+        "world": world,
+        "cell": label,
+        "runs": int(outcome.shape[0]),
+        "goals": int(outcome.size),
         "success_rate": float((outcome == REACHED).mean()),
         "outcomes": {name: int((outcome == code).sum()) for code, name in enumerate(OUTCOMES)},
         "time_to_goal_median_s": float(np.median(times)) if times.size else None,
         "loc_error_median_m": float(np.median(err)) if err.size else None,
         "loc_error_p99_m": float(np.percentile(err, 99)) if err.size else None,
-        "compile_s": compile_s, "run_s": run_s, "robot_seconds_per_s": robot_s / run_s if run_s > 0 else None,
-    }  # fmt: skip
+        "compile_s": compile_s,
+        "run_s": run_s,
+        "robot_seconds_per_s": robot_s / run_s if run_s > 0 else None,
+    }
 
 
 def main() -> int:
@@ -88,8 +105,12 @@ def main() -> int:
     p.add_argument("--samples", type=int, default=256, help="MPPI samples (default 256; the library's 1000)")
     p.add_argument("--horizon", type=int, default=30, help="MPPI horizon in ticks (default 30; the library's 40)")
     p.add_argument("--particles", type=int, default=500, help="AMCL particles (default 500; the library's 2000)")
-    p.add_argument("--max-seconds", type=float, default=None,
-                   help="cap on each run's simulated time, s; goals still running count as failures (default: none)")
+    p.add_argument(
+        "--max-seconds",
+        type=float,
+        default=None,
+        help="cap on each run's simulated time, s; goals still running count as failures (default: none)",
+    )
     p.add_argument("--ablation", action="store_true", help="add the B+LO and B+SS rows")
     p.add_argument("--out", default=None, help="folder for each run's summary.json and paths.png")
     p.add_argument("--json", default=None, help="write the rows as JSON here")
@@ -113,16 +134,20 @@ def main() -> int:
             + " | ".join(f"{100 * cells[c]['success_rate']:.1f}% of {cells[c]['goals']}" for c in cols)
             + " |"
         )
-    print("\n| robot | world | method | runs | reached | missed | collided | lost | timeout | fallen | skipped "
-          "| pending | time to goal s (median) | loc. error m (median / p99) | compile s | robot-s per s |")
+    print(
+        "\n| robot | world | method | runs | reached | missed | collided | lost | timeout | fallen | skipped "
+        "| pending | time to goal s (median) | loc. error m (median / p99) | compile s | robot-s per s |"
+    )
     print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|")
     for x in rows:
         o = x["outcomes"]
         fmt = lambda v, d=3: "-" if v is None else f"{v:.{d}f}"  # noqa: E731
-        print(f"| {x['robot']} | {x['world']} | {x['cell']} | {x['runs']} | {o['reached']} | {o['missed']} | "
-              f"{o['collided']} | {o['lost']} | {o['timeout']} | {o['fallen']} | {o['skipped']} | {o['pending']} | "
-              f"{fmt(x['time_to_goal_median_s'], 1)} | {fmt(x['loc_error_median_m'])} / {fmt(x['loc_error_p99_m'])} | "
-              f"{x['compile_s']:.0f} | {fmt(x['robot_seconds_per_s'], 1)} |")  # fmt: skip
+        print(
+            f"| {x['robot']} | {x['world']} | {x['cell']} | {x['runs']} | {o['reached']} | {o['missed']} | "
+            f"{o['collided']} | {o['lost']} | {o['timeout']} | {o['fallen']} | {o['skipped']} | {o['pending']} | "
+            f"{fmt(x['time_to_goal_median_s'], 1)} | {fmt(x['loc_error_median_m'])} / {fmt(x['loc_error_p99_m'])} | "
+            f"{x['compile_s']:.0f} | {fmt(x['robot_seconds_per_s'], 1)} |"
+        )
     if args.json:
         from jaxquad.io.jsonfile import write_json
 

@@ -20,8 +20,15 @@ import time
 def _sim_rows(args) -> list[dict]:
     from jaxquad import _bench_sim
 
-    ns = argparse.Namespace(robots=args.robots, sim_robot=args.robot, sim_world="house", sim_chunk_frames=None,
-                            sim_repeats=args.sim_repeats, sim_depth="on", devices=args.devices)  # fmt: skip
+    ns = argparse.Namespace(
+        robots=args.robots,
+        sim_robot=args.robot,
+        sim_world="house",
+        sim_chunk_frames=None,
+        sim_repeats=args.sim_repeats,
+        sim_depth="on",
+        devices=args.devices,
+    )
     return _bench_sim.run(ns)["rows"]
 
 
@@ -56,19 +63,37 @@ def _grid_rows(args) -> tuple[list[dict], str]:
         wall = time.perf_counter() - t0
         first = counts if first is None else first
         same = all(np.array_equal(getattr(counts, k), getattr(first, k)) for k in ("tp", "fp", "fn", "samples"))
-        rows.append({"devices": d, "configurations": spec.size, "first_call_s": compile_s, "wall_s": wall,
-                     "configurations_per_s": spec.size / wall, "same_counts": same})  # fmt: skip
+        rows.append(
+            {
+                "devices": d,
+                "configurations": spec.size,
+                "first_call_s": compile_s,
+                "wall_s": wall,
+                "configurations_per_s": spec.size / wall,
+                "same_counts": same,
+            }
+        )
     return rows, what
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--parts", nargs="+", choices=("sim", "grid"), default=["sim", "grid"],
-                        help="what to measure (default: sim grid)")  # fmt: skip
+    parser.add_argument(
+        "--parts",
+        nargs="+",
+        choices=("sim", "grid"),
+        default=["sim", "grid"],
+        help="what to measure (default: sim grid)",
+    )
     parser.add_argument("--devices", type=int, nargs="+", default=None, help="device counts (default: 1 and all)")
     parser.add_argument("--robot", default="go2", help="robot (default go2)")
-    parser.add_argument("--robots", type=int, nargs="+", default=None,
-                        help="fleet sizes, depth on (default: 8 on CPU, 16384 65536 131072 on GPU)")  # fmt: skip
+    parser.add_argument(
+        "--robots",
+        type=int,
+        nargs="+",
+        default=None,
+        help="fleet sizes, depth on (default: 8 on CPU, 16384 65536 131072 on GPU)",
+    )
     parser.add_argument("--sim-repeats", type=int, default=3, help="steady chunks timed per size (default 3)")
     parser.add_argument("--grid-log", default=None, help="fleet log to tune on (default: simulate one)")
     parser.add_argument(
@@ -107,14 +132,18 @@ def main() -> None:
             print(f"| simulator, depth on | {r['robots']} robots | {r['devices']} | does not fit | | {r['error']} |")
             continue
         speed = f"{r['robot_steps_per_s'] / base[r['robots']]:.2f}x" if base.get(r["robots"]) else ""
-        print(f"| simulator, depth {r['depth']} | {r['robots']} robots | {r['devices']} | "
-              f"{r['robot_steps_per_s']:,.0f} robot-steps/s | {speed} | {r['frames_per_chunk']} frames/chunk, "
-              f"{r['chunk_gib']:.1f} GiB/device, compile {r['compile_s']:.0f} s |")  # fmt: skip
+        print(
+            f"| simulator, depth {r['depth']} | {r['robots']} robots | {r['devices']} | "
+            f"{r['robot_steps_per_s']:,.0f} robot-steps/s | {speed} | {r['frames_per_chunk']} frames/chunk, "
+            f"{r['chunk_gib']:.1f} GiB/device, compile {r['compile_s']:.0f} s |"
+        )
     for r in grid:
         speed = r["configurations_per_s"] / grid[0]["configurations_per_s"]
-        print(f"| grid tuning | {what} | {r['devices']} | {r['configurations_per_s']:,.0f} configurations/s | "
-              f"{speed:.2f}x | {r['wall_s']:.1f} s, first call {r['first_call_s']:.1f} s, "
-              f"counts {'equal' if r['same_counts'] else 'DIFFER'} |")  # fmt: skip
+        print(
+            f"| grid tuning | {what} | {r['devices']} | {r['configurations_per_s']:,.0f} configurations/s | "
+            f"{speed:.2f}x | {r['wall_s']:.1f} s, first call {r['first_call_s']:.1f} s, "
+            f"counts {'equal' if r['same_counts'] else 'DIFFER'} |"
+        )
     if args.json:
         print(to_json({**env, "simulator": sim, "grid": {"what": what, "rows": grid}}))
 

@@ -51,13 +51,21 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list) -> dict:
     from jaxquad.slam import final_poses, load_params, map_grid, run_fleet, slam_config
     from jaxquad.slam.report import robot_report, robot_slice
 
-    config = FleetConfig(robot=robot, world=world, n_robots=args.robots, n_worlds=min(4, args.robots),
-                         style=args.style, seed=args.seed, depth=True)  # fmt: skip
+    config = FleetConfig(
+        robot=robot,
+        world=world,
+        n_robots=args.robots,
+        n_worlds=min(4, args.robots),
+        style=args.style,
+        seed=args.seed,
+        depth=True,
+    )
     log = rollout(config, args.seconds, progress=True)
     maps = log.maps()
     values = load_params()
-    x = laser_inputs(log, "stabilized", args.contacts, 5, 0.2, values["max_laser_range"], None,
-                     values["leg_yaw_rate_std"])  # fmt: skip
+    x = laser_inputs(
+        log, "stabilized", args.contacts, 5, 0.2, values["max_laser_range"], None, values["leg_yaw_rate_std"]
+    )
     every = max(1, round(config.camera_hz / args.scan_hz))
     x = _subsample(x, every)
     t = np.asarray(x["t"], np.float64)
@@ -69,13 +77,19 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list) -> dict:
         state, out, _ = run_fleet(spec, params, x)
         wall = time.perf_counter() - t0
         final = final_poses(state, out)
-        reps = [robot_report(spec, t, robot_slice(state, i), robot_slice(out, i), final[i], x, i,
-                             maps[world_index[i] % len(maps)]) for i in range(args.robots)]  # fmt: skip
+        reps = [
+            robot_report(
+                spec, t, robot_slice(state, i), robot_slice(out, i), final[i], x, i, maps[world_index[i] % len(maps)]
+            )
+            for i in range(args.robots)
+        ]
         ate = lambda which, reps=reps: [r["scores"][which].get("ate", {}).get("rmse") for r in reps]  # noqa: E731
         ms = lambda key, reps=reps: [r["map_scores"][key] for r in reps]  # noqa: E731
-        rows.append(f"| {robot} | {world} | {lo} | {_stats(ate('odometry'))} | {_stats(ate('online'))} | "
-                    f"{_stats(ate('final'))} | {_stats(ms('iou'))} | {_stats(ms('precision'))} | "
-                    f"{_stats(ms('recall'))} | {np.mean([r['loop_closures'] for r in reps]):.1f} | {wall:.1f} |")  # fmt: skip
+        rows.append(
+            f"| {robot} | {world} | {lo} | {_stats(ate('odometry'))} | {_stats(ate('online'))} | "
+            f"{_stats(ate('final'))} | {_stats(ms('iou'))} | {_stats(ms('precision'))} | "
+            f"{_stats(ms('recall'))} | {np.mean([r['loop_closures'] for r in reps]):.1f} | {wall:.1f} |"
+        )
         json_rows.append({"robot": robot, "world": world, "lo_constraints": lo, "wall_s": wall, "robots": reps})
         print(rows[-1], file=sys.stderr)
     return {"x": x, "grid": grid, "values": values}
@@ -89,7 +103,9 @@ def _throughput(cell: dict, batches, rows: list) -> None:
     span = float(x["t"][-1] - x["t"][0])
     for b in batches:
         reps = -(-b // x["odom"].shape[0])
-        xb = {k: (v if k in ("t", "bearings", "T_base_laser") else np.concatenate([v] * reps)[:b]) for k, v in x.items()}
+        xb = {
+            k: (v if k in ("t", "bearings", "T_base_laser") else np.concatenate([v] * reps)[:b]) for k, v in x.items()
+        }
         t0 = time.perf_counter()
         run_fleet(spec, params, xb)  # compiles
         first = time.perf_counter() - t0
@@ -106,28 +122,45 @@ def main() -> None:
     p.add_argument("--world", action="append", choices=("house", "warehouse"), help="worlds (default: house)")
     p.add_argument("--robots", type=int, default=2, help="robots per fleet (default 2)")
     p.add_argument("--seconds", type=float, default=10.0, help="simulated time per fleet, s (default 10)")
-    p.add_argument("--style", choices=("calm", "aggressive"), default="aggressive", help="gait style (default aggressive)")
+    p.add_argument(
+        "--style", choices=("calm", "aggressive"), default="aggressive", help="gait style (default aggressive)"
+    )
     p.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
-    p.add_argument("--contacts", choices=("truth", "mixed", "observer"), default="truth",
-                   help="contact source of the leg odometry (default truth)")  # fmt: skip
+    p.add_argument(
+        "--contacts",
+        choices=("truth", "mixed", "observer"),
+        default="truth",
+        help="contact source of the leg odometry (default truth)",
+    )
     p.add_argument("--scan-hz", type=float, default=10.0, help="scans per second fed to the SLAM (default 10)")
-    p.add_argument("--lo-constraints", nargs="+", default=["off", "velocity", "preintegrated"],
-                   choices=("off", "velocity", "preintegrated"), help="constraint kinds (default: all three)")  # fmt: skip
+    p.add_argument(
+        "--lo-constraints",
+        nargs="+",
+        default=["off", "velocity", "preintegrated"],
+        choices=("off", "velocity", "preintegrated"),
+        help="constraint kinds (default: all three)",
+    )
     p.add_argument("--throughput", type=int, nargs="*", default=[], help="robot counts for the speed table")
     p.add_argument("--json", default=None, help="also write every robot's report to this JSON file")
     args = p.parse_args()
     args.robot, args.world = args.robot or ["go2"], args.world or ["house"]
     print(f"command: {' '.join(sys.argv)}")
     print(f"machine: {platform.node()}, {jax.devices()[0].device_kind} ({jax.default_backend()})")
-    rows = ["| robot | world | LO constraints | ATE odometry m | ATE online m | ATE final m | map IoU | precision | "
-            "recall | loops/robot | SLAM wall s |", "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+    rows = [
+        "| robot | world | LO constraints | ATE odometry m | ATE online m | ATE final m | map IoU | precision | "
+        "recall | loops/robot | SLAM wall s |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     json_rows, cell = [], None
     for robot in args.robot:
         for world in args.world:
             cell = _cell(args, robot, world, rows, json_rows)
     print("\n".join(rows))
     if args.throughput:
-        speed = ["| robots | scans | scan span s | compile s | run s | real-time factor |", "|---:|---:|---:|---:|---:|---:|"]
+        speed = [
+            "| robots | scans | scan span s | compile s | run s | real-time factor |",
+            "|---:|---:|---:|---:|---:|---:|",
+        ]
         _throughput(cell, args.throughput, speed)
         print("\n" + "\n".join(speed))
     if args.json:

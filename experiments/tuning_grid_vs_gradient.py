@@ -33,27 +33,47 @@ def main() -> None:
     inputs, truth, t = tn.observer_inputs(robot, log)
     inputs_s = time.perf_counter() - t0
     runs = {
-        "grid": tn.tune_fleet("grid", inputs, truth, t, args.mode, args.holdout, spec=tn.GridSpec.default(args.grid_size),
-                        chunk=args.chunk)[1],
+        "grid": tn.tune_fleet(
+            "grid",
+            inputs,
+            truth,
+            t,
+            args.mode,
+            args.holdout,
+            spec=tn.GridSpec.default(args.grid_size),
+            chunk=args.chunk,
+        )[1],
         "gradient": tn.tune_fleet("gradient", inputs, truth, t, args.mode, args.holdout, steps=args.steps)[1],
-    }  # fmt: skip
+    }
     splits = [s for s in ("train", "heldout") if f"paper_{s}" in runs["grid"]]
-    print(f"{robot.name}, {args.mode} mode, {runs['grid']['robots_train']} training + "
-          f"{runs['grid']['robots_heldout']} held-out robot(s), {runs['grid']['duration_s']:.1f} s; "
-          f"observer inputs {inputs_s:.1f} s\n")  # fmt: skip
-    print("| parameters | robots | F1 | touchdown ms (mean, abs) | lift-off ms (mean, abs) | missed edges | force RMSE N | wall s |")
+    print(
+        f"{robot.name}, {args.mode} mode, {runs['grid']['robots_train']} training + "
+        f"{runs['grid']['robots_heldout']} held-out robot(s), {runs['grid']['duration_s']:.1f} s; "
+        f"observer inputs {inputs_s:.1f} s\n"
+    )
+    print(
+        "| parameters | robots | F1 | touchdown ms (mean, abs) | lift-off ms (mean, abs) | missed edges | force RMSE N | wall s |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     rows = [("paper defaults", "paper", runs["grid"], None)]
-    rows += [(f"grid ({runs['grid']['configurations']} configs)", "tuned", runs["grid"], runs["grid"]["wall_s"]),
-             (f"gradient ({runs['gradient']['steps']} steps, {runs['gradient']['stopped']})", "tuned",
-              runs["gradient"], runs["gradient"]["wall_s"])]  # fmt: skip
+    rows += [
+        (f"grid ({runs['grid']['configurations']} configs)", "tuned", runs["grid"], runs["grid"]["wall_s"]),
+        (
+            f"gradient ({runs['gradient']['steps']} steps, {runs['gradient']['stopped']})",
+            "tuned",
+            runs["gradient"],
+            runs["gradient"]["wall_s"],
+        ),
+    ]
     for name, prefix, run, wall in rows:
         for split in splits:
             s = run[f"{prefix}_{split}"]
-            print(f"| {name} | {split} | {s['f1']:.4f} | {s['touchdown_mean_ms']:.1f}, {s['touchdown_mean_abs_ms']:.1f} | "
-                  f"{s['liftoff_mean_ms']:.1f}, {s['liftoff_mean_abs_ms']:.1f} | "
-                  f"{s['touchdown_missed'] + s['liftoff_missed']} | {s['force_rmse_n']:.1f} | "
-                  f"{'' if wall is None else f'{wall:.1f}'} |")  # fmt: skip
+            print(
+                f"| {name} | {split} | {s['f1']:.4f} | {s['touchdown_mean_ms']:.1f}, {s['touchdown_mean_abs_ms']:.1f} | "
+                f"{s['liftoff_mean_ms']:.1f}, {s['liftoff_mean_abs_ms']:.1f} | "
+                f"{s['touchdown_missed'] + s['liftoff_missed']} | {s['force_rmse_n']:.1f} | "
+                f"{'' if wall is None else f'{wall:.1f}'} |"
+            )
     for method in ("grid", "gradient"):
         print(f"\n{method}: {json.dumps(runs[method]['params'])}")
     if args.json:

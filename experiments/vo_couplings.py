@@ -25,8 +25,10 @@ import numpy as np
 def _table(log, est, R_base_imu) -> list[str]:
     from jaxquad.vo import COUPLINGS, score_vo, visual_odometry
 
-    rows = ["| odometry | mean ATE m | max ATE m | RPE 2 m % | RPE 5 m % | end drift % | loss rate | wall s |",
-            "|---|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+    rows = [
+        "| odometry | mean ATE m | max ATE m | RPE 2 m % | RPE 5 m % | end drift % | loss rate | wall s |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     leg_rows = None
     for coupling in COUPLINGS:
         t0 = time.perf_counter()
@@ -47,8 +49,10 @@ def _row(name, scores, robots, wall) -> str:
     ate = [s["trajectory"]["ate"]["rmse"] for s in scores if "ate" in s["trajectory"]]
     drift = np.nanmean([s["drift"]["drift_pct"]["mean"] for s in scores])  # segment drift, 2/5/10 m
     loss = f"{np.mean([r['loss_rate'] for r in robots]) * 100:.2f} %" if robots else "-"
-    return (f"| {name} | {np.mean(ate):.3f} | {np.max(ate):.3f} | {mean('rpe_2m', 50.0)} | {mean('rpe_5m', 20.0)} | "
-            f"{drift:.2f} | {loss} | {wall:.1f} |")  # fmt: skip
+    return (
+        f"| {name} | {np.mean(ate):.3f} | {np.max(ate):.3f} | {mean('rpe_2m', 50.0)} | {mean('rpe_5m', 20.0)} | "
+        f"{drift:.2f} | {loss} | {wall:.1f} |"
+    )
 
 
 def _throughput(log, est, R_base_imu, batches, frames: int) -> list[str]:
@@ -101,8 +105,10 @@ def main() -> int:
     from jaxquad.estimate.inputs import R_base_imu
     from jaxquad.io import load_log
 
-    print(f"`python {' '.join(sys.argv)}`  \nmachine: {platform.processor() or platform.machine()}, "
-          f"jax {jax.__version__} on {jax.devices()[0].device_kind}\n")  # fmt: skip
+    print(
+        f"`python {' '.join(sys.argv)}`  \nmachine: {platform.processor() or platform.machine()}, "
+        f"jax {jax.__version__} on {jax.devices()[0].device_kind}\n"
+    )
     log = load_log(args.log)
     robot, _, est = estimate_log(log, args.contacts)
     print("\n".join(_table(log, est, R_base_imu(robot))))

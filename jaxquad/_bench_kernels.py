@@ -29,8 +29,9 @@ _DEPTH_CHUNK = 64  # images drawn at a time
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--repeats", type=int, default=20,
-                        help="steady calls timed per kernel, at most (median; default 20)")  # fmt: skip
+    parser.add_argument(
+        "--repeats", type=int, default=20, help="steady calls timed per kernel, at most (median; default 20)"
+    )
 
 
 def _observer_inputs(key, batch: int | None):
@@ -52,7 +53,8 @@ def _observer_inputs(key, batch: int | None):
         J_z=0.3 * jax.random.normal(k[3], shape + (_N_FEET, _NV)),
     )
     legs = dict(
-        p_base_foot=jnp.array([0.19, 0.14, -0.27]) * jnp.array([[1.0, 1.0, 1.0], [1.0, -1.0, 1.0], [-1.0, 1.0, 1.0], [-1.0, -1.0, 1.0]])
+        p_base_foot=jnp.array([0.19, 0.14, -0.27])
+        * jnp.array([[1.0, 1.0, 1.0], [1.0, -1.0, 1.0], [-1.0, 1.0, 1.0], [-1.0, -1.0, 1.0]])
         + 0.03 * jax.random.normal(k[4], shape + (_N_FEET, 3)),
         v_base_foot=0.5 * jax.random.normal(k[5], shape + (_N_FEET, 3)),
         omega_imu=jax.random.normal(k[6], shape + (3,)),
@@ -105,9 +107,15 @@ def _kernels(key, batch: int | None) -> dict:
         # Every step gets its own inputs (scaled per step), so nothing can be hoisted out of the loop.
         def step(state, scale):
             state, _ = observer_twist(
-                params, state, scale * p, scale * tau_bar, scale * J_z, scale * p_base_foot, scale * v_base_foot,
+                params,
+                state,
+                scale * p,
+                scale * tau_bar,
+                scale * J_z,
+                scale * p_base_foot,
+                scale * v_base_foot,
                 scale * omega_imu,
-            )  # fmt: skip
+            )
             return state, None
 
         return jax.lax.scan(step, state, 1.0 + 1e-3 * jnp.arange(_SCAN_STEPS, dtype=p.dtype))[0]
@@ -129,7 +137,10 @@ def _kernels(key, batch: int | None) -> dict:
         "observer": (observer_step, obs, obs_axes, 1),
         "twist": (twist, leg, (0, 0, 0), 1),
         "stabilized_scan": (
-            lambda d, r, p: stabilized_scan(d, _INTRINSICS, r, p, _BAND), (depth, roll, pitch), (0, 0, 0), 1
+            lambda d, r, p: stabilized_scan(d, _INTRINSICS, r, p, _BAND),
+            (depth, roll, pitch),
+            (0, 0, 0),
+            1,
         ),
         "baseline_scan": (lambda d: baseline_scan(d, _INTRINSICS, _BAND), (depth,), (0,), 1),
         "level_scan": (lambda d, r, p: level_scan(d, _INTRINSICS, r, p, _BAND), (depth, roll, pitch), (0, 0, 0), 1),

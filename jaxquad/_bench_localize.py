@@ -13,8 +13,14 @@ import argparse
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--loc-robots", type=int, nargs="+", default=[1, 64], metavar="R",
-                        help="robots per localization update (default: 1 64; 4096 on a GPU)")  # fmt: skip
+    parser.add_argument(
+        "--loc-robots",
+        type=int,
+        nargs="+",
+        default=[1, 64],
+        metavar="R",
+        help="robots per localization update (default: 1 64; 4096 on a GPU)",
+    )
     parser.add_argument(
         "--loc-particles", type=int, default=2000, metavar="P", help="particles per robot (default 2000)"
     )
@@ -77,7 +83,15 @@ def run(args: argparse.Namespace) -> dict:
         compile_s, run_ms = time_jitted(step, params, field, states, inputs, repeats=getattr(args, "repeats", 20))
         if not bool(step(params, field, states, inputs)[1].updated.all()):
             raise RuntimeError("benchmark inputs did not trigger an update")
-        rows.append({"kernel": "amcl update", "robots": r, "particles": particles, "beams": beams,
-                     "compile_s": compile_s, "run_ms": run_ms,
-                     "beam_evals_per_s": r * particles * beams / (run_ms * 1e-3)})  # fmt: skip
+        rows.append(
+            {
+                "kernel": "amcl update",
+                "robots": r,
+                "particles": particles,
+                "beams": beams,
+                "compile_s": compile_s,
+                "run_ms": run_ms,
+                "beam_evals_per_s": r * particles * beams / (run_ms * 1e-3),
+            }
+        )
     return {"rows": rows}

@@ -21,12 +21,23 @@ _DELTAS = ("2", "5", "10")
 
 
 def add_arguments(parser: argparse._ArgumentGroup) -> None:  # the bench command's group for this section
-    parser.add_argument("--eval-poses", type=int, default=100_000, metavar="N",
-                        help="poses of the trajectory for jaxquad eval vs evo (default: 100000)")
-    parser.add_argument("--n-traj", type=int, default=64, metavar="N",
-                        help="trajectories in the batched path (default: 64; use 10000 on a GPU)")
-    parser.add_argument("--traj-poses", type=int, default=5000, metavar="N",
-                        help="poses per batched trajectory (default: 5000)")
+    parser.add_argument(
+        "--eval-poses",
+        type=int,
+        default=100_000,
+        metavar="N",
+        help="poses of the trajectory for jaxquad eval vs evo (default: 100000)",
+    )
+    parser.add_argument(
+        "--n-traj",
+        type=int,
+        default=64,
+        metavar="N",
+        help="trajectories in the batched path (default: 64; use 10000 on a GPU)",
+    )
+    parser.add_argument(
+        "--traj-poses", type=int, default=5000, metavar="N", help="poses per batched trajectory (default: 5000)"
+    )
 
 
 def _write_pair(directory: Path, n: int) -> tuple[Path, Path]:
@@ -61,17 +72,39 @@ def _cli_vs_evo(n: int) -> list[dict]:
     evo_rpe = shutil.which("evo_rpe", path=str(bindir)) or shutil.which("evo_rpe")
     with tempfile.TemporaryDirectory() as tmp:
         ref, est = _write_pair(Path(tmp), n)
-        ours = _wall([sys.executable, "-m", "jaxquad.cli", "eval", str(ref), str(est), "--align", "se3",
-                      "--delta", *_DELTAS, "--json"])
-        rows = [{"case": f"jaxquad eval ({n} poses, ATE ARE APE RPE {'/'.join(_DELTAS)} m)", "wall_s": ours,
-                 "evo_over_ours": 1.0}]
+        ours = _wall(
+            [
+                sys.executable,
+                "-m",
+                "jaxquad.cli",
+                "eval",
+                str(ref),
+                str(est),
+                "--align",
+                "se3",
+                "--delta",
+                *_DELTAS,
+                "--json",
+            ]
+        )
+        rows = [
+            {
+                "case": f"jaxquad eval ({n} poses, ATE ARE APE RPE {'/'.join(_DELTAS)} m)",
+                "wall_s": ours,
+                "evo_over_ours": 1.0,
+            }
+        ]
         if evo_ape is None or evo_rpe is None:
             return rows
-        evo = sum(_wall([evo_ape, "tum", str(ref), str(est), "-a", "-r", r]) for r in ("trans_part", "angle_rad", "full"))
-        evo += sum(_wall([evo_rpe, "tum", str(ref), str(est), "-a", "-r", "trans_part", "-d", d, "-u", "m"])
-                   for d in _DELTAS)
-        rows.append({"case": f"evo_ape x3 + evo_rpe x{len(_DELTAS)} (same metrics)", "wall_s": evo,
-                     "evo_over_ours": evo / ours})
+        evo = sum(
+            _wall([evo_ape, "tum", str(ref), str(est), "-a", "-r", r]) for r in ("trans_part", "angle_rad", "full")
+        )
+        evo += sum(
+            _wall([evo_rpe, "tum", str(ref), str(est), "-a", "-r", "trans_part", "-d", d, "-u", "m"]) for d in _DELTAS
+        )
+        rows.append(
+            {"case": f"evo_ape x3 + evo_rpe x{len(_DELTAS)} (same metrics)", "wall_s": evo, "evo_over_ours": evo / ours}
+        )
     return rows
 
 
@@ -94,8 +127,12 @@ def _batched(n_traj: int, n_poses: int) -> dict:
     deltas = jnp.asarray([2.0, 5.0, 10.0], p_ref.dtype)
     fn = batched_fn("se3", "m", False, 0.1)
     compile_s, run_ms = time_jitted(fn, p_ref, q_ref, p_est, q_est, deltas, deltas, repeats=5)
-    return {"case": f"evaluate_batch {n_traj} x {n_poses} poses (float32, se3, RPE and drift 2/5/10 m)",
-            "compile_s": compile_s, "run_ms": run_ms, "traj_per_s": n_traj / (run_ms / 1e3)}
+    return {
+        "case": f"evaluate_batch {n_traj} x {n_poses} poses (float32, se3, RPE and drift 2/5/10 m)",
+        "compile_s": compile_s,
+        "run_ms": run_ms,
+        "traj_per_s": n_traj / (run_ms / 1e3),
+    }
 
 
 def run(args: argparse.Namespace) -> dict:
@@ -104,8 +141,13 @@ def run(args: argparse.Namespace) -> dict:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 3, got {getattr(args, name)}")
     rows = _cli_vs_evo(args.eval_poses)
     b = _batched(args.n_traj, args.traj_poses)
-    out = {"rows": rows, "batched": b["case"], "batched_compile_s": b["compile_s"],
-           "batched_run_ms": b["run_ms"], "batched_traj_per_s": b["traj_per_s"]}
+    out = {
+        "rows": rows,
+        "batched": b["case"],
+        "batched_compile_s": b["compile_s"],
+        "batched_run_ms": b["run_ms"],
+        "batched_traj_per_s": b["traj_per_s"],
+    }
     if len(rows) > 1:
         out["evo_over_jaxquad_eval"] = rows[1]["evo_over_ours"]
     out["cpu_count"] = os.cpu_count()

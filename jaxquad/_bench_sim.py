@@ -14,17 +14,29 @@ import argparse
 
 def add_arguments(parser: argparse._ArgumentGroup) -> None:  # the bench command's group for this section
     parser.add_argument(
-        "--robots", type=int, nargs="+", metavar="N",
+        "--robots",
+        type=int,
+        nargs="+",
+        metavar="N",
         help="fleet sizes for --sim (default: 1 64 on CPU, 1024 4096 16384 on GPU)",
-    )  # fmt: skip
+    )
     parser.add_argument("--sim-robot", default="go2", help="robot for --sim (default go2)")
-    parser.add_argument("--sim-world", default="house", choices=["house", "warehouse"],
-                        help="generated world for --sim (default house)")  # fmt: skip
-    parser.add_argument("--sim-chunk-frames", type=int, default=None,
-                        help="camera frames per chunk for --sim (default: the most that fit in free memory, <= 30)")  # fmt: skip
+    parser.add_argument(
+        "--sim-world", default="house", choices=["house", "warehouse"], help="generated world for --sim (default house)"
+    )
+    parser.add_argument(
+        "--sim-chunk-frames",
+        type=int,
+        default=None,
+        help="camera frames per chunk for --sim (default: the most that fit in free memory, <= 30)",
+    )
     parser.add_argument("--sim-repeats", type=int, default=3, help="steady chunks timed per row (default 3)")
-    parser.add_argument("--sim-depth", choices=("both", "on", "off"), default="both",
-                        help="rows with the depth camera on, off or both (default both)")  # fmt: skip
+    parser.add_argument(
+        "--sim-depth",
+        choices=("both", "on", "off"),
+        default="both",
+        help="rows with the depth camera on, off or both (default both)",
+    )
 
 
 def run(args: argparse.Namespace) -> dict:
@@ -39,13 +51,22 @@ def run(args: argparse.Namespace) -> dict:
     if any(n < 1 for n in sizes):
         raise ValueError(f"--robots sizes must be >= 1, got {sizes}")
     rows = []
-    grid = [(d, n, depth) for d in (getattr(args, "devices", None) or [None]) for n in sizes
-            for depth in {"both": (True, False), "on": (True,), "off": (False,)}[getattr(args, "sim_depth", "both")]]  # fmt: skip
+    grid = [
+        (d, n, depth)
+        for d in (getattr(args, "devices", None) or [None])
+        for n in sizes
+        for depth in {"both": (True, False), "on": (True,), "off": (False,)}[getattr(args, "sim_depth", "both")]
+    ]
     for devices, n, depth in grid:
         cfg = FleetConfig(
-            robot=args.sim_robot, world=args.sim_world, n_robots=n, n_worlds=min(n, 4),
-            depth=depth, frames_per_chunk=args.sim_chunk_frames, devices=devices,
-        )  # fmt: skip
+            robot=args.sim_robot,
+            world=args.sim_world,
+            n_robots=n,
+            n_worlds=min(n, 4),
+            depth=depth,
+            frames_per_chunk=args.sim_chunk_frames,
+            devices=devices,
+        )
         label = f"{cfg.width}x{cfg.height}" if depth else "off"
         t0 = time.perf_counter()
         try:
@@ -62,8 +83,14 @@ def run(args: argparse.Namespace) -> dict:
                 jax.block_until_ready(out)
                 times.append(time.perf_counter() - t0)
         except (ValueError, jax.errors.JaxRuntimeError) as e:  # does not fit: say so, keep the other rows
-            rows.append({"devices": devices or jax.device_count(), "robots": n, "depth": label,
-                         "error": str(e).splitlines()[0][:300]})  # fmt: skip
+            rows.append(
+                {
+                    "devices": devices or jax.device_count(),
+                    "robots": n,
+                    "depth": label,
+                    "error": str(e).splitlines()[0][:300],
+                }
+            )
             fleet = state = out = None
             jax.clear_caches()
             continue

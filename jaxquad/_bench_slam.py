@@ -14,14 +14,31 @@ import time
 
 
 def add_arguments(parser: argparse._ArgumentGroup) -> None:  # the bench command's group for this section
-    parser.add_argument("--slam-nodes", type=int, nargs="+", default=[1000, 3500, 10000], metavar="N",
-                        help="nodes of the single graphs timed against GTSAM (default: 1000 3500 10000)")
-    parser.add_argument("--slam-batch", type=int, default=64, metavar="N",
-                        help="graphs optimized at once in the batched row (default: 64; 4096 on a GPU)")
-    parser.add_argument("--slam-batch-nodes", type=int, default=500, metavar="N",
-                        help="nodes per batched graph (default: 500; ~1.3 edges per node)")
-    parser.add_argument("--slam-robots", type=int, default=8, metavar="N",
-                        help="robots in the batched occupancy row (default: 8)")
+    parser.add_argument(
+        "--slam-nodes",
+        type=int,
+        nargs="+",
+        default=[1000, 3500, 10000],
+        metavar="N",
+        help="nodes of the single graphs timed against GTSAM (default: 1000 3500 10000)",
+    )
+    parser.add_argument(
+        "--slam-batch",
+        type=int,
+        default=64,
+        metavar="N",
+        help="graphs optimized at once in the batched row (default: 64; 4096 on a GPU)",
+    )
+    parser.add_argument(
+        "--slam-batch-nodes",
+        type=int,
+        default=500,
+        metavar="N",
+        help="nodes per batched graph (default: 500; ~1.3 edges per node)",
+    )
+    parser.add_argument(
+        "--slam-robots", type=int, default=8, metavar="N", help="robots in the batched occupancy row (default: 8)"
+    )
 
 
 def _gtsam_lm(sg):
@@ -43,8 +60,9 @@ def _gtsam_lm(sg):
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     result = optimizer.optimize()
     wall = time.perf_counter() - t0
-    poses = np.array([[result.atPose2(k).x(), result.atPose2(k).y(), result.atPose2(k).theta()]
-                      for k in range(len(sg.initial))])
+    poses = np.array(
+        [[result.atPose2(k).x(), result.atPose2(k).y(), result.atPose2(k).theta()] for k in range(len(sg.initial))]
+    )
     return poses, wall, optimizer.iterations()
 
 
@@ -66,13 +84,22 @@ def _single_graphs(sizes: list[int], gtsam_ok: bool) -> list[dict]:
             params = SolverParams()
             compile_s, run_ms = time_jitted(fn, graph, params, repeats=3, budget_s=5.0)
             _, info = fn(graph, params)
-            row = {"case": f"manhattan {n} nodes", "n_edges": len(sg.edge_i), "compile_s": compile_s,
-                   "solve_s": run_ms / 1e3, "iterations": int(info.iterations),
-                   "initial_chi2": float(info.initial_chi2), "final_chi2": float(info.final_chi2)}
+            row = {
+                "case": f"manhattan {n} nodes",
+                "n_edges": len(sg.edge_i),
+                "compile_s": compile_s,
+                "solve_s": run_ms / 1e3,
+                "iterations": int(info.iterations),
+                "initial_chi2": float(info.initial_chi2),
+                "final_chi2": float(info.final_chi2),
+            }
             if gtsam_ok:
                 poses, wall, iterations = _gtsam_lm(sg)
-                row.update(gtsam_solve_s=wall, gtsam_iterations=iterations,
-                           gtsam_final_chi2=float(chi2(graph, jnp.asarray(poses))))
+                row.update(
+                    gtsam_solve_s=wall,
+                    gtsam_iterations=iterations,
+                    gtsam_final_chi2=float(chi2(graph, jnp.asarray(poses))),
+                )
                 row["time_ratio"] = row["solve_s"] / wall
                 row["chi2_rel_diff"] = row["final_chi2"] / row["gtsam_final_chi2"] - 1.0
         rows.append(row)
@@ -92,8 +119,10 @@ def _batched_graphs(batch: int, nodes: int) -> dict:
     # 16 distinct graphs tiled to the batch (generating thousands in Python would dominate the run).
     graphs = [manhattan_graph(nodes, seed=s) for s in range(min(16, batch))]
     m_cap = max(len(g.edge_i) for g in graphs)
-    built = [build_graph(g.initial, g.edge_i, g.edge_j, g.measurement, g.information, edge_capacity=m_cap,
-                         dtype=jnp.float32) for g in graphs]
+    built = [
+        build_graph(g.initial, g.edge_i, g.edge_j, g.measurement, g.information, edge_capacity=m_cap, dtype=jnp.float32)
+        for g in graphs
+    ]
     stacked = stack_graphs([built[k % len(built)] for k in range(batch)])
     fn = jax.jit(jax.vmap(optimize, in_axes=(0, None)))
     params = SolverParams()
@@ -101,15 +130,24 @@ def _batched_graphs(batch: int, nodes: int) -> dict:
     _, info = fn(stacked, params)
     # float32 against float64 on the same graphs (the distinct ones).
     with jax.enable_x64(True):
-        ref = [float(jax.jit(optimize)(build_graph(g.initial, g.edge_i, g.edge_j, g.measurement, g.information),
-                                       SolverParams())[1].final_chi2) for g in graphs[:4]]
+        ref = [
+            float(
+                jax.jit(optimize)(
+                    build_graph(g.initial, g.edge_i, g.edge_j, g.measurement, g.information), SolverParams()
+                )[1].final_chi2
+            )
+            for g in graphs[:4]
+        ]
     ratio = np.asarray(info.final_chi2[: len(ref)], np.float64) / np.asarray(ref)
-    return {"batched_case": f"{batch} graphs x {nodes} nodes (~{m_cap} edges), float32",
-            "batched_compile_s": compile_s, "batched_run_s": run_ms / 1e3,
-            "batched_graphs_per_s": batch / (run_ms / 1e3),
-            "batched_converged_fraction": float(np.mean(np.asarray(info.converged))),
-            "batched_max_iterations": int(np.max(np.asarray(info.iterations))),
-            "batched_chi2_over_float64_max": float(ratio.max())}
+    return {
+        "batched_case": f"{batch} graphs x {nodes} nodes (~{m_cap} edges), float32",
+        "batched_compile_s": compile_s,
+        "batched_run_s": run_ms / 1e3,
+        "batched_graphs_per_s": batch / (run_ms / 1e3),
+        "batched_converged_fraction": float(np.mean(np.asarray(info.converged))),
+        "batched_max_iterations": int(np.max(np.asarray(info.iterations))),
+        "batched_chi2_over_float64_max": float(ratio.max()),
+    }
 
 
 def _occupancy(robots: int) -> list[dict]:
@@ -130,16 +168,35 @@ def _occupancy(robots: int) -> list[dict]:
     rows = []
     one = jax.jit(insert_scan)
     c, ms = time_jitted(one, spec, params, init_grid(spec), poses[0, 0], ranges[0, 0], bearings)
-    rows.append({"case": "insert_scan, 1 robot (160 beams, 800 x 800 cells of 0.05 m, 20 m range)",
-                 "compile_s": c, "run_ms": ms, "scans_per_s_per_robot": 1e3 / ms})
+    rows.append(
+        {
+            "case": "insert_scan, 1 robot (160 beams, 800 x 800 cells of 0.05 m, 20 m range)",
+            "compile_s": c,
+            "run_ms": ms,
+            "scans_per_s_per_robot": 1e3 / ms,
+        }
+    )
     seq = jax.jit(map_from_scans)
     c, ms = time_jitted(seq, spec, params, poses[0], ranges[0], bearings, repeats=5)
-    rows.append({"case": f"map_from_scans, 1 robot x {t} scans (lax.scan)", "compile_s": c, "run_ms": ms,
-                 "scans_per_s_per_robot": t * 1e3 / ms})
+    rows.append(
+        {
+            "case": f"map_from_scans, 1 robot x {t} scans (lax.scan)",
+            "compile_s": c,
+            "run_ms": ms,
+            "scans_per_s_per_robot": t * 1e3 / ms,
+        }
+    )
     fleet = jax.jit(jax.vmap(map_from_scans, in_axes=(None, None, 0, 0, None)))
     c, ms = time_jitted(fleet, spec, params, poses, ranges, bearings, repeats=3)
-    rows.append({"case": f"map_from_scans, {robots} robots x {t} scans (vmap)", "compile_s": c, "run_ms": ms,
-                 "scans_per_s_per_robot": t * 1e3 / ms, "scans_per_s_total": robots * t * 1e3 / ms})
+    rows.append(
+        {
+            "case": f"map_from_scans, {robots} robots x {t} scans (vmap)",
+            "compile_s": c,
+            "run_ms": ms,
+            "scans_per_s_per_robot": t * 1e3 / ms,
+            "scans_per_s_total": robots * t * 1e3 / ms,
+        }
+    )
     return rows
 
 
@@ -154,8 +211,11 @@ def run(args: argparse.Namespace) -> dict:
         raise ValueError(f"--slam-nodes must be >= 20, got {args.slam_nodes}")
     gtsam_ok = importlib.util.find_spec("gtsam") is not None
     out = {"rows": _single_graphs(args.slam_nodes, gtsam_ok)}
-    out["gtsam"] = "LevenbergMarquardtOptimizer, same graphs and stopping rule" if gtsam_ok else \
-        "not importable: GTSAM rows skipped"
+    out["gtsam"] = (
+        "LevenbergMarquardtOptimizer, same graphs and stopping rule"
+        if gtsam_ok
+        else "not importable: GTSAM rows skipped"
+    )
     out.update(_batched_graphs(args.slam_batch, args.slam_batch_nodes))
     out["occupancy"] = _occupancy(args.slam_robots)
     out["cpu_count"] = os.cpu_count()

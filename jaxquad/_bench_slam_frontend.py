@@ -21,17 +21,22 @@ _SENSOR_Z = 0.3  # m
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--frontend-repeats", type=int, default=20,
-                        help="steady calls timed per row (median; default 20)")  # fmt: skip
     parser.add_argument(
-        "--frontend-candidates", type=int, default=4,
+        "--frontend-repeats", type=int, default=20, help="steady calls timed per row (median; default 20)"
+    )
+    parser.add_argument(
+        "--frontend-candidates",
+        type=int,
+        default=4,
         help="coarse blocks expanded per round of the exact search (default: 4; under vmap every item runs "
         "as many rounds as the batch's worst item)",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--frontend-max-rounds", type=int, default=None,
+        "--frontend-max-rounds",
+        type=int,
+        default=None,
         help="cap on those rounds (default: none, every match exact; capped matches report exact = False)",
-    )  # fmt: skip
+    )
 
 
 def _inputs(batch: int, seed: int = 0):

@@ -33,11 +33,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cpu", action="store_true", help="run on the CPU (sets JAX_PLATFORMS=cpu)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of tables")
     parser.add_argument(
-        "--batch", type=int, nargs="+", default=[1, 1024], metavar="N",
+        "--batch",
+        type=int,
+        nargs="+",
+        default=[1, 1024],
+        metavar="N",
         help="vmapped batch sizes (default: 1 1024)",
     )
     parser.add_argument(
-        "--devices", type=int, nargs="+", default=None, metavar="N",
+        "--devices",
+        type=int,
+        nargs="+",
+        default=None,
+        metavar="N",
         help="device counts to run --sim on, one row each, in this run (default: all devices)",
     )
     for name, (module, help_) in _SECTIONS.items():

@@ -12,18 +12,42 @@ from collections.abc import Callable, Iterator
 # subcommand -> module defining `add_arguments(parser)` and `run(args) -> int`.
 _COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("jaxquad.bench", "time the kernels (compile and steady run) for one robot and batches"),
-    "demo": ("jaxquad.demo.cli", "simulate a small fleet, estimate contacts and odometry, score, write a report folder"),
+    "demo": (
+        "jaxquad.demo.cli",
+        "simulate a small fleet, estimate contacts and odometry, score, write a report folder",
+    ),
     "eval": ("jaxquad.metrics.cli", "ATE/ARE/APE/RPE of an estimated TUM trajectory against a reference, as evo"),
-    "estimate": ("jaxquad.estimate.cli", "contacts and leg-inertial odometry over a robot log (TUM, npz, JSON summary)"),
-    "tune": ("jaxquad.estimate.tune.cli", "tune the contact observer's gains and thresholds on a fleet log (grid search or gradient)"),
+    "estimate": (
+        "jaxquad.estimate.cli",
+        "contacts and leg-inertial odometry over a robot log (TUM, npz, JSON summary)",
+    ),
+    "tune": (
+        "jaxquad.estimate.tune.cli",
+        "tune the contact observer's gains and thresholds on a fleet log (grid search or gradient)",
+    ),
     "convert": ("jaxquad.ros.convert_cli", "a robot log (.npz) from a ROS 1 or ROS 2 bag and a topics file"),
-    "export": ("jaxquad.ros.export_cli", "estimation, odometry, SLAM results (TUM, scans, maps) as a ROS bag for RViz/Foxglove"),
-    "navigate": ("jaxquad.nav.cli", "closed-loop navigation of a simulated fleet to random goals (JSON summary, paths)"),
-    "localize": ("jaxquad.localize.cli", "AMCL localization of a log's robots on a saved map (TUM, npz, JSON summary with errors)"),
-    "slam": ("jaxquad.slam.cli", "online 2D graph SLAM with leg-odometry constraints over a robot or laser log (TUM, map, g2o)"),
+    "export": (
+        "jaxquad.ros.export_cli",
+        "estimation, odometry, SLAM results (TUM, scans, maps) as a ROS bag for RViz/Foxglove",
+    ),
+    "navigate": (
+        "jaxquad.nav.cli",
+        "closed-loop navigation of a simulated fleet to random goals (JSON summary, paths)",
+    ),
+    "localize": (
+        "jaxquad.localize.cli",
+        "AMCL localization of a log's robots on a saved map (TUM, npz, JSON summary with errors)",
+    ),
+    "slam": (
+        "jaxquad.slam.cli",
+        "online 2D graph SLAM with leg-odometry constraints over a robot or laser log (TUM, map, g2o)",
+    ),
     "posegraph": ("jaxquad.slam.posegraph_cli", "optimize a 2D g2o pose graph (sparse Levenberg-Marquardt)"),
     "vo": ("jaxquad.vo.cli", "depth-inertial visual odometry guided and restarted by leg odometry (TUM, JSON summary)"),
-    "simulate": ("jaxquad.sim.cli", "run an MJX fleet of robots in generated worlds; write the fleet log, ground-truth TUM and maps"),
+    "simulate": (
+        "jaxquad.sim.cli",
+        "run an MJX fleet of robots in generated worlds; write the fleet log, ground-truth TUM and maps",
+    ),
 }
 
 
@@ -52,10 +76,13 @@ def progress_bar(desc: str, unit: str) -> Iterator[Callable[[int, int], None]]:
 def add_devices_argument(parser, what: str = "robots") -> None:
     """The shared `--devices N` option of commands whose batch is split over devices (`jaxquad.parallel`)."""
     parser.add_argument(
-        "--devices", type=int, default=None, metavar="N",
+        "--devices",
+        type=int,
+        default=None,
+        metavar="N",
         help=f"split the {what} over the first N devices (default: all devices this run sees; in a multi-process "
         "run all devices of all processes); results equal one device's up to float rounding",
-    )  # fmt: skip
+    )
 
 
 class _Parser(argparse.ArgumentParser):

@@ -27,9 +27,9 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
+
 from jaxquad._mjx import mjx
 from jaxquad.kernels.lie import SO3
-
 from jaxquad.robots import Robot
 
 __all__ = [
@@ -111,9 +111,7 @@ def integrate_pos(
     return jnp.concatenate(parts)
 
 
-def coriolis_transpose_v(
-    m: mjx.Model, qpos: Float[Array, "nq"], qvel: Float[Array, "nv"]
-) -> Float[Array, "nv"]:
+def coriolis_transpose_v(m: mjx.Model, qpos: Float[Array, "nq"], qvel: Float[Array, "nv"]) -> Float[Array, "nv"]:
     """C(q, v)^T v (nv,) for the Christoffel-consistent C: Mdot v - C v (N, N m).
 
     Mdot = d/dt M(q(t)) at t = 0 along q(t) = integrate_pos(q, v, t), by a forward-mode JVP; C v is
@@ -249,16 +247,12 @@ def v_base_foot(
     return leg_kinematics(robot, qpos, qvel, m).v_base_foot
 
 
-def foot_jacobians_base(
-    robot: Robot, qpos: Float[Array, "nq"], m: mjx.Model | None = None
-) -> Float[Array, "4 3 nu"]:
+def foot_jacobians_base(robot: Robot, qpos: Float[Array, "nq"], m: mjx.Model | None = None) -> Float[Array, "4 3 nu"]:
     """d p_base_foot / d q_joints (4, 3, nu), w.r.t. the actuated joints (m/rad)."""
     return leg_kinematics(robot, qpos, jnp.zeros(robot.nv, qpos.dtype), m).J_base_foot
 
 
-def foot_jacobians_world(
-    robot: Robot, qpos: Float[Array, "nq"], m: mjx.Model | None = None
-) -> Float[Array, "4 3 nv"]:
+def foot_jacobians_world(robot: Robot, qpos: Float[Array, "nq"], m: mjx.Model | None = None) -> Float[Array, "4 3 nv"]:
     """World-frame point Jacobians of the foot sites (4, 3, nv), as MuJoCo's `mj_jacSite`: columns
     follow qvel's convention (free-joint angular columns act on the base-frame rate)."""
     return leg_kinematics(robot, qpos, jnp.zeros(robot.nv, qpos.dtype), m).J_world_foot

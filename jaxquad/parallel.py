@@ -30,8 +30,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-__all__ = ["BATCH", "gather", "initialize", "is_main", "mesh", "pad", "padded_size", "place", "shard_batched",
-           "unpad"]  # fmt: skip
+__all__ = ["BATCH", "gather", "initialize", "is_main", "mesh", "pad", "padded_size", "place", "shard_batched", "unpad"]
 
 BATCH = "batch"  # the mesh's one axis name
 GATHER_PIECE_BYTES = 1 << 28  # a multi-process gather replicates pieces of at most this size on every device

@@ -11,17 +11,24 @@ counter-clockwise from the camera's forward axis.
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import numpy as np
 
 from jaxquad.io.atomic import atomic_open
 
 # One colour per trajectory source, fixed so every picture of a report reads the same way.
-COLORS = {"ground truth": "black", "mixed": "tab:orange", "observer": "tab:purple", "truth": "tab:blue",
-          "tuned": "tab:orange", "paper": "tab:purple",
-          "stabilized": "tab:green", "baseline": "tab:red"}  # fmt: skip
+COLORS = {
+    "ground truth": "black",
+    "mixed": "tab:orange",
+    "observer": "tab:purple",
+    "truth": "tab:blue",
+    "tuned": "tab:orange",
+    "paper": "tab:purple",
+    "stabilized": "tab:green",
+    "baseline": "tab:red",
+}
 
 
 def _figure(*args, **kwargs):
@@ -140,8 +147,15 @@ def plot_contacts(
     top = 1.2 * float(max(np.percentile(forces, 98), 1.0)) if forces.size else 1.0
     for f, ax in enumerate(axes[:, 0]):
         ax.fill_between(t, 0, top * 1.05, where=contact_true[:, f], step="mid", color="0.85", label="true stance")
-        ax.fill_between(t, -0.16 * top, -0.04 * top, where=contact_est[:, f], step="mid",
-                        color=COLORS["mixed"], label="estimated stance")  # fmt: skip
+        ax.fill_between(
+            t,
+            -0.16 * top,
+            -0.04 * top,
+            where=contact_est[:, f],
+            step="mid",
+            color=COLORS["mixed"],
+            label="estimated stance",
+        )
         ax.plot(t, force_true[:, f], color="black", lw=1.0, label="true force z")
         ax.plot(t, force_est[:, f], color=COLORS["mixed"], lw=1.2, label="estimated force z (filtered)")
         ax.set_ylim(-0.2 * top, top * 1.08)

@@ -1,27 +1,49 @@
 """Pure jitted math for one robot: contact observer, leg twist, scan slicing, Lie groups (`lie`), pose graphs,
 occupancy grids, scan matching, AMCL, costmaps, planning, MPPI, frontiers. `vmap` at the call site."""
-from jaxquad.kernels.icp import Alignment, DepthLevel, IcpParams, align, depth_frame, gauss_newton_step
+
 from jaxquad.kernels.contact import ContactEstimate, ContactObserver, ObserverParams, ObserverState
+from jaxquad.kernels.costmap import CostGrid, CostmapParams, costmap_from_occupancy, distance_transform, inflation_cost
+from jaxquad.kernels.floor import FloorParams, FloorState, floor_init, floor_step, stance_height
+from jaxquad.kernels.frontiers import FrontierChoice, FrontierParams, choose_frontier, frontier_mask, label_clusters
+from jaxquad.kernels.icp import Alignment, DepthLevel, IcpParams, align, depth_frame, gauss_newton_step
+from jaxquad.kernels.likelihood_field import (
+    LikelihoodField,
+    distance_at,
+    likelihood_field,
+    sample_free_poses,
+    scan_likelihood,
+)
+from jaxquad.kernels.loop_closure import LoopCandidate, LoopParams, LoopSpec, find_loop_closure
+from jaxquad.kernels.mppi import MppiInputs, MppiOutput, MppiParams, MppiState
 from jaxquad.kernels.occupancy import GridSpec, OccupancyGrid, OccupancyParams, init_grid, insert_scan, map_from_scans
+from jaxquad.kernels.particle_filter import (
+    AmclInputs,
+    AmclOutput,
+    AmclParams,
+    AmclState,
+    amcl_init,
+    amcl_step,
+    effective_sample_size,
+    measurement_update,
+    omni_motion,
+    pose_estimate,
+    systematic_resample,
+)
+from jaxquad.kernels.planner import cost_to_go, descend, nearest_open_cell, step_weights
 from jaxquad.kernels.posegraph import PoseGraph, SolveInfo, SolverParams, edge_error, optimize
 from jaxquad.kernels.raycast import Boxes, cast_depth, pinhole_rays, ray_distance
-from jaxquad.kernels.scan import CameraIntrinsics, Scan, baseline_scan, level_scan, stabilized_scan
-from jaxquad.kernels.costmap import CostGrid, CostmapParams, costmap_from_occupancy, distance_transform, inflation_cost
-from jaxquad.kernels.frontiers import FrontierChoice, FrontierParams, choose_frontier, frontier_mask, label_clusters
-from jaxquad.kernels.mppi import MppiInputs, MppiOutput, MppiParams, MppiState
-from jaxquad.kernels.planner import cost_to_go, descend, nearest_open_cell, step_weights
-from jaxquad.kernels.likelihood_field import (
-    LikelihoodField, distance_at, likelihood_field, sample_free_poses, scan_likelihood,
-)  # fmt: skip
-from jaxquad.kernels.particle_filter import (
-    AmclInputs, AmclOutput, AmclParams, AmclState, amcl_init, amcl_step, effective_sample_size, measurement_update,
-    omni_motion, pose_estimate, systematic_resample,
-)  # fmt: skip
-from jaxquad.kernels.scan_grid import LikelihoodGrid, MatchParams, MatchSpec, cells_for_range, likelihood_grid, scan_points, world_points
-from jaxquad.kernels.scan_match import MatchResult, match_scan, scan_lookup, search_angles
-from jaxquad.kernels.loop_closure import LoopCandidate, LoopParams, LoopSpec, find_loop_closure
-from jaxquad.kernels.floor import FloorParams, FloorState, floor_init, floor_step, stance_height
 from jaxquad.kernels.robust_twist import RobustTwist, robust_body_twist, robust_weight
+from jaxquad.kernels.scan import CameraIntrinsics, Scan, baseline_scan, level_scan, stabilized_scan
+from jaxquad.kernels.scan_grid import (
+    LikelihoodGrid,
+    MatchParams,
+    MatchSpec,
+    cells_for_range,
+    likelihood_grid,
+    scan_points,
+    world_points,
+)
+from jaxquad.kernels.scan_match import MatchResult, match_scan, scan_lookup, search_angles
 from jaxquad.kernels.twist import Twist, body_twist, rolling_contact
 
 __all__ = [

@@ -221,8 +221,11 @@ class ContactObserver(eqx.Module):
             )
         dt = jnp.asarray(dt, state.p_hat.dtype)
         valid = (
-            jnp.all(jnp.isfinite(p)) & jnp.all(jnp.isfinite(tau_bar)) & jnp.all(jnp.isfinite(J_z))
-            & jnp.isfinite(dt) & (dt > 0)
+            jnp.all(jnp.isfinite(p))
+            & jnp.all(jnp.isfinite(tau_bar))
+            & jnp.all(jnp.isfinite(J_z))
+            & jnp.isfinite(dt)
+            & (dt > 0)
         )
         # Rejected inputs are replaced before any arithmetic so NaN cannot leak into gradients.
         p = jnp.where(valid, p, state.p_hat)

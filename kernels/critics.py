@@ -9,9 +9,10 @@ frame), driven by the body-frame commands `u` (S, T, 3) = vx, vy, yaw rate. Near
 from __future__ import annotations
 
 import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
 from jaxquad.kernels.costmap import INSCRIBED, CostGrid
 from jaxquad.kernels.lie import wrap_angle
-from jaxtyping import Array, Bool, Float
 
 
 def obstacle(traj: Float[Array, "S T 3"], grid: CostGrid, collision_cost: Float[Array, ""]) -> Float[Array, " S"]:

@@ -22,12 +22,8 @@ from jaxtyping import Array, Bool, Float
 class FloorParams(eqx.Module):
     """Noise levels of the height filter (traced leaves)."""
 
-    process_std: Float[
-        Array, ""
-    ]  # m/sqrt(s): random walk of the integrated vertical velocity
-    meas_std: Float[
-        Array, ""
-    ]  # m: one foot's height measurement (ground compliance, kinematics)
+    process_std: Float[Array, ""]  # m/sqrt(s): random walk of the integrated vertical velocity
+    meas_std: Float[Array, ""]  # m: one foot's height measurement (ground compliance, kinematics)
 
     @classmethod
     def default(cls) -> "FloorParams":
@@ -41,9 +37,7 @@ class FloorState(eqx.Module):
     has_floor: Bool[Array, ""]  # whether floor_z has been set by a first measurement
 
 
-def floor_init(
-    z0: Float[Array, ""], var0: float | Float[Array, ""] = 0.0
-) -> FloorState:
+def floor_init(z0: Float[Array, ""], var0: float | Float[Array, ""] = 0.0) -> FloorState:
     """Start at the known height z0 (m) with variance var0 (m^2); the floor is set by the first stance."""
     z0 = jnp.asarray(z0)
     return FloorState(

@@ -15,8 +15,9 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxquad.kernels.planner import OFFSETS, neighbour
 from jaxtyping import Array, Bool, Float, Int
+
+from jaxquad.kernels.planner import OFFSETS, neighbour
 
 _FOUR = ((-1, 0), (1, 0), (0, -1), (0, 1))
 
@@ -94,7 +95,9 @@ def cluster_stats(mask: Bool[Array, "H W"], labels: Int[Array, "H W"]) -> tuple[
         indexing="ij",
     )
     size = jax.ops.segment_sum(mask.reshape(-1).astype(jnp.int32), lab, n)
-    sums = jax.ops.segment_sum(jnp.where(mask.reshape(-1, 1), jnp.stack([r.reshape(-1), c.reshape(-1)], -1), 0.0), lab, n)
+    sums = jax.ops.segment_sum(
+        jnp.where(mask.reshape(-1, 1), jnp.stack([r.reshape(-1), c.reshape(-1)], -1), 0.0), lab, n
+    )
     return size, sums / jnp.where(size > 0, size.astype(jnp.float32), jnp.nan)[:, None]
 
 

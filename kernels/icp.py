@@ -21,9 +21,10 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
 from jaxquad.kernels._small_linalg import spd_solve
 from jaxquad.kernels.lie import SO3, se3_exp, skew
-from jaxtyping import Array, Bool, Float
 
 # Cosine of the largest angle between a pixel's two one-sided normals (about 18 deg).
 NORMAL_AGREEMENT_COS = 0.95
@@ -47,9 +48,13 @@ class IcpParams(eqx.Module):
     @classmethod
     def default(cls) -> IcpParams:
         return cls(
-            max_dist=jnp.asarray(0.15), huber_k=jnp.asarray(0.02), rot_prior_weight=jnp.asarray(1e3),
-            trans_prior_weight=jnp.asarray(0.0), damping=jnp.asarray(1e-6), max_normal_jump=jnp.asarray(12.0),
-        )  # fmt: skip
+            max_dist=jnp.asarray(0.15),
+            huber_k=jnp.asarray(0.02),
+            rot_prior_weight=jnp.asarray(1e3),
+            trans_prior_weight=jnp.asarray(0.0),
+            damping=jnp.asarray(1e-6),
+            max_normal_jump=jnp.asarray(12.0),
+        )
 
 
 class DepthLevel(eqx.Module):
@@ -172,9 +177,11 @@ def point_to_plane(
     J = jnp.concatenate([n, jnp.cross(p, n)], -1)  # (N, 6)
     Jw = J * wgt[:, None]
     return NormalEquations(
-        H=Jw.T @ J, b=Jw.T @ r, n_inliers=jnp.sum(inlier.astype(r.dtype)),
+        H=Jw.T @ J,
+        b=Jw.T @ r,
+        n_inliers=jnp.sum(inlier.astype(r.dtype)),
         sq_residual=jnp.sum(jnp.where(inlier, r * r, 0.0)),
-    )  # fmt: skip
+    )
 
 
 def prior_terms(
@@ -194,9 +201,13 @@ def prior_terms(
 
 
 def gauss_newton_step(
-    T_ref_cur: Float[Array, "4 4"], T_guess: Float[Array, "4 4"], cur: DepthLevel, ref: DepthLevel,
-    K: Float[Array, "3 3"], params: IcpParams,
-) -> tuple[Float[Array, "4 4"], NormalEquations]:  # fmt: skip
+    T_ref_cur: Float[Array, "4 4"],
+    T_guess: Float[Array, "4 4"],
+    cur: DepthLevel,
+    ref: DepthLevel,
+    K: Float[Array, "3 3"],
+    params: IcpParams,
+) -> tuple[Float[Array, "4 4"], NormalEquations]:
     """One Gauss-Newton update: xi = -(H + H_prior + damping I)^-1 (b + b_prior), T <- exp(xi) T.
     Returns the new pose and the point-to-plane equations at the old one."""
     ne = point_to_plane(T_ref_cur, cur, ref, K, params)
@@ -219,9 +230,14 @@ class Alignment(eqx.Module):
 
 
 def align(
-    ref: tuple[DepthLevel, ...], cur: tuple[DepthLevel, ...], K: Float[Array, "3 3"], T_init: Float[Array, "4 4"],
-    T_guess: Float[Array, "4 4"], params: IcpParams, iterations: tuple[int, ...],
-) -> Alignment:  # fmt: skip
+    ref: tuple[DepthLevel, ...],
+    cur: tuple[DepthLevel, ...],
+    K: Float[Array, "3 3"],
+    T_init: Float[Array, "4 4"],
+    T_guess: Float[Array, "4 4"],
+    params: IcpParams,
+    iterations: tuple[int, ...],
+) -> Alignment:
     """Coarse-to-fine alignment; `iterations[l]` Gauss-Newton steps on level l, coarsest first.
     The statistics are re-linearized at the final pose on the finest level."""
     T = T_init
@@ -233,7 +249,11 @@ def align(
     H_p, _ = prior_terms(T, T_guess, params)
     n = jnp.maximum(ne.n_inliers, 1.0)
     return Alignment(
-        T_ref_cur=T, H=ne.H, H_total=ne.H + H_p, n_inliers=ne.n_inliers,
-        n_valid=jnp.sum(cur[0].valid.astype(T.dtype)), rmse=jnp.sqrt(ne.sq_residual / n),
+        T_ref_cur=T,
+        H=ne.H,
+        H_total=ne.H + H_p,
+        n_inliers=ne.n_inliers,
+        n_valid=jnp.sum(cur[0].valid.astype(T.dtype)),
+        rmse=jnp.sqrt(ne.sq_residual / n),
         min_eig=jnp.linalg.eigvalsh(ne.H / n)[0],
-    )  # fmt: skip
+    )

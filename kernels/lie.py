@@ -21,9 +21,21 @@ from jaxtyping import Array, ArrayLike, Float
 _SMALL_ANGLE_SQ = 1e-6
 
 __all__ = [
-    "SE2", "SE3", "SO2", "SO3", "R_level_base", "se2", "se3_exp", "skew", "rotation_matrix", "quat_from_rpy",
-    "roll_pitch", "wrap_angle", "xy_theta", "yaw_of",
-]  # fmt: skip
+    "SE2",
+    "SE3",
+    "SO2",
+    "SO3",
+    "R_level_base",
+    "se2",
+    "se3_exp",
+    "skew",
+    "rotation_matrix",
+    "quat_from_rpy",
+    "roll_pitch",
+    "wrap_angle",
+    "xy_theta",
+    "yaw_of",
+]
 
 
 def skew(w: Float[ArrayLike, "3"]) -> Float[Array, "3 3"]:

@@ -63,11 +63,19 @@ def likelihood_field(
         raise ValueError("occupancy grid has no free cell to place particles in")
     rows, cols = np.nonzero(free)
     free_xy = np.zeros((grid.size, 2))
-    free_xy[: rows.size] = np.stack([origin_xy[0] + (cols + 0.5) * resolution, origin_xy[1] + (rows + 0.5) * resolution], 1)
-    leaves = {"dist": np.minimum(dist, max_dist), "origin": origin_xy, "resolution": resolution, "max_dist": max_dist,
-              "free_xy": free_xy}  # fmt: skip
-    return LikelihoodField(**{k: jnp.asarray(v, jnp.float32) for k, v in leaves.items()},
-                           n_free=jnp.asarray(rows.size, jnp.int32))  # fmt: skip
+    free_xy[: rows.size] = np.stack(
+        [origin_xy[0] + (cols + 0.5) * resolution, origin_xy[1] + (rows + 0.5) * resolution], 1
+    )
+    leaves = {
+        "dist": np.minimum(dist, max_dist),
+        "origin": origin_xy,
+        "resolution": resolution,
+        "max_dist": max_dist,
+        "free_xy": free_xy,
+    }
+    return LikelihoodField(
+        **{k: jnp.asarray(v, jnp.float32) for k, v in leaves.items()}, n_free=jnp.asarray(rows.size, jnp.int32)
+    )
 
 
 def distance_at(field: LikelihoodField, xy: Float[Array, "*N 2"]) -> Float[Array, "*N"]:

@@ -102,9 +102,16 @@ def find_loop_closure(
     coarse_grid = likelihood_grid(spec.coarse, params.match, prior[:2], pts, mask)
     coarse = match_scan(spec.coarse, params.match, coarse_grid, prior, ranges[j], bearings, valid[j])
     second = match_scan(
-        spec.coarse, params.match, coarse_grid, prior, ranges[j], bearings, valid[j],
-        coarse.pose[:2], params.ambiguity_distance,
-    )  # fmt: skip
+        spec.coarse,
+        params.match,
+        coarse_grid,
+        prior,
+        ranges[j],
+        bearings,
+        valid[j],
+        coarse.pose[:2],
+        params.ambiguity_distance,
+    )
     fine_grid = likelihood_grid(spec.fine, params.match, coarse.pose[:2], pts, mask)
     fine = match_scan(spec.fine, params.match, fine_grid, coarse.pose, ranges[j], bearings, valid[j])
 

@@ -19,10 +19,11 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Key
+
 from jaxquad.kernels import critics
 from jaxquad.kernels.costmap import INSCRIBED, CostGrid
 from jaxquad.kernels.lie import wrap_angle
-from jaxtyping import Array, Bool, Float, Key
 
 _BACKUP_CHECK = 0.3  # m behind the robot that must be free to back up
 
@@ -147,7 +148,9 @@ def _path_targets(
     ahead = (arc - arc[near] >= params.lookahead) | (jnp.arange(path.shape[0]) >= last)
     k_carrot = jnp.argmax(ahead & (jnp.arange(path.shape[0]) >= near))
     # Window: path_window points evenly between the nearest point and the carrot.
-    idx = near + jnp.round(jnp.linspace(0.0, 1.0, params.path_window) * (k_carrot - near).astype(jnp.float32)).astype(jnp.int32)
+    idx = near + jnp.round(jnp.linspace(0.0, 1.0, params.path_window) * (k_carrot - near).astype(jnp.float32)).astype(
+        jnp.int32
+    )
     remaining = jnp.sqrt(d2[near]) + arc[last] - arc[near]
     return path[k_carrot], path[idx], remaining
 

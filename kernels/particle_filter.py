@@ -32,9 +32,18 @@ from jaxquad.kernels.lie import SE2, wrap_angle
 from jaxquad.kernels.likelihood_field import LikelihoodField, sample_free_poses, scan_likelihood
 
 __all__ = [
-    "AmclInputs", "AmclOutput", "AmclParams", "AmclState", "amcl_init", "amcl_step", "effective_sample_size",
-    "measurement_update", "omni_motion", "pose_estimate", "systematic_resample",
-]  # fmt: skip
+    "AmclInputs",
+    "AmclOutput",
+    "AmclParams",
+    "AmclState",
+    "amcl_init",
+    "amcl_step",
+    "effective_sample_size",
+    "measurement_update",
+    "omni_motion",
+    "pose_estimate",
+    "systematic_resample",
+]
 
 
 class AmclParams(eqx.Module):
@@ -60,10 +69,20 @@ class AmclParams(eqx.Module):
         """The paper's AMCL numbers (alpha1-5 0.2, sigma_hit 0.2, z_hit 0.5, z_rand 0.5, 0.25 m / 0.2 rad),
         AMCL's recovery rates (0.001 / 0.1) and Nav2's initial spread (0.5 m, pi/12 rad)."""
         values = dict(
-            alpha=[0.2] * 5, z_hit=0.5, z_rand=0.5, sigma_hit=0.2, range_min=0.2, range_max=8.0, update_min_d=0.25,
-            update_min_a=0.2, alpha_slow=0.001, alpha_fast=0.1, resample_ratio=0.5, init_std=[0.5, 0.5, np.pi / 12],
+            alpha=[0.2] * 5,
+            z_hit=0.5,
+            z_rand=0.5,
+            sigma_hit=0.2,
+            range_min=0.2,
+            range_max=8.0,
+            update_min_d=0.25,
+            update_min_a=0.2,
+            alpha_slow=0.001,
+            alpha_fast=0.1,
+            resample_ratio=0.5,
+            init_std=[0.5, 0.5, np.pi / 12],
             T_base_laser=[0.0, 0.0, 0.0],
-        )  # fmt: skip
+        )
         unknown = set(overrides) - set(values)
         if unknown:
             raise ValueError(f"unknown AMCL parameter(s) {sorted(unknown)}")
@@ -102,9 +121,12 @@ class AmclOutput(eqx.Module):
 
 
 def omni_motion(
-    key: Array, poses: Float[Array, "P 3"], odom_old: Float[Array, "3"], odom_new: Float[Array, "3"],
+    key: Array,
+    poses: Float[Array, "P 3"],
+    odom_old: Float[Array, "3"],
+    odom_new: Float[Array, "3"],
     alpha: Float[Array, "5"],
-) -> Float[Array, "P 3"]:  # fmt: skip
+) -> Float[Array, "P 3"]:
     """Sample the omnidirectional odometry motion model for every particle."""
     d = odom_new - odom_old
     trans = jnp.hypot(d[0], d[1])
@@ -200,9 +222,13 @@ def pose_estimate(
 
 
 def amcl_init(
-    params: AmclParams, field: LikelihoodField, pose: Float[Array, "3"] | None, key: Array, capacity: int,
+    params: AmclParams,
+    field: LikelihoodField,
+    pose: Float[Array, "3"] | None,
+    key: Array,
+    capacity: int,
     n_active: int | Array | None = None,
-) -> AmclState:  # fmt: skip
+) -> AmclState:
     """Particles around `pose` (Gaussian, std params.init_std) or, with pose None, uniform over the
     map's free cells (global localization). `capacity` slots, the first `n_active` (default all) used."""
     if pose is None:
@@ -215,9 +241,16 @@ def amcl_init(
     log_w = jnp.where(mask, -jnp.log(jnp.sum(mask).astype(jnp.float32)), -jnp.inf)
     mean, cov = pose_estimate(poses, log_w, mask)
     return AmclState(
-        poses=poses, log_w=log_w, mask=mask, odom_ref=jnp.zeros(3), started=jnp.asarray(False),
-        log_w_slow=jnp.asarray(-jnp.inf), log_w_fast=jnp.asarray(-jnp.inf), mean=mean, cov=cov,
-    )  # fmt: skip
+        poses=poses,
+        log_w=log_w,
+        mask=mask,
+        odom_ref=jnp.zeros(3),
+        started=jnp.asarray(False),
+        log_w_slow=jnp.asarray(-jnp.inf),
+        log_w_fast=jnp.asarray(-jnp.inf),
+        mean=mean,
+        cov=cov,
+    )
 
 
 def _beams(n_beams: int, width: int) -> np.ndarray:
@@ -244,11 +277,20 @@ def amcl_step(
         poses = omni_motion(k_motion, state.poses, odom_old, inputs.odom, params.alpha)
         poses = jnp.where(state.mask[:, None], poses, state.poses)  # inactive slots stay as they are
         lik = scan_likelihood(
-            field, poses, params.T_base_laser, inputs.ranges[beams], inputs.bearings[beams], params.z_hit,
-            params.z_rand, params.sigma_hit, params.range_min, params.range_max,
-        )  # fmt: skip
-        moved_state = eqx.tree_at(lambda s: (s.poses, s.odom_ref, s.started), state,
-                                  (poses, inputs.odom, jnp.asarray(True)))  # fmt: skip
+            field,
+            poses,
+            params.T_base_laser,
+            inputs.ranges[beams],
+            inputs.bearings[beams],
+            params.z_hit,
+            params.z_rand,
+            params.sigma_hit,
+            params.range_min,
+            params.range_max,
+        )
+        moved_state = eqx.tree_at(
+            lambda s: (s.poses, s.odom_ref, s.started), state, (poses, inputs.odom, jnp.asarray(True))
+        )
         random_poses = sample_free_poses(field, k_rand, poses.shape[0])
         return measurement_update(params, moved_state, jnp.log(lik), random_poses, k_res)
 

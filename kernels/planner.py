@@ -15,8 +15,9 @@ import math
 
 import jax
 import jax.numpy as jnp
-from jaxquad.kernels.costmap import INSCRIBED, UNKNOWN
 from jaxtyping import Array, Bool, Float, Int, Shaped
+
+from jaxquad.kernels.costmap import INSCRIBED, UNKNOWN
 
 # (drow, dcol) of the 8 neighbours and their step lengths (cells).
 OFFSETS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))

@@ -35,9 +35,7 @@ class RobustTwist(eqx.Module):
     slip: Bool[Array, "F"]  # stance feet whose robust weight fell below slip_weight
 
 
-def robust_weight(
-    residual_norm: Float[Array, "*B"], scale: Float[ArrayLike, ""], loss: str
-) -> Float[Array, "*B"]:
+def robust_weight(residual_norm: Float[Array, "*B"], scale: Float[ArrayLike, ""], loss: str) -> Float[Array, "*B"]:
     """u(r) of the module docstring for residual norms r >= 0 (m/s) and scale c > 0 (m/s)."""
     x = residual_norm / scale
     if loss == "huber":
@@ -82,9 +80,7 @@ def robust_body_twist(
     twist, u = solve(weights), jnp.ones_like(w0)
     c = jnp.maximum(scale, 1e-9)
     for _ in range(n_iter):
-        r = jnp.sqrt(
-            jnp.sum(twist.residual**2, -1) + 1e-12
-        )  # smooth at 0 for gradients
+        r = jnp.sqrt(jnp.sum(twist.residual**2, -1) + 1e-12)  # smooth at 0 for gradients
         u = jnp.where(w0 > 0, robust_weight(r, c, loss), 1.0)
         twist = solve(jnp.where(jnp.isfinite(weights), w0 * u, weights))
     n_stance = jnp.sum(w0)
@@ -93,6 +89,4 @@ def robust_body_twist(
         twist,
         (n_stance, twist.valid & (n_stance >= min_stance)),
     )
-    return RobustTwist(
-        twist=twist, weights=w0 * u, robust_weight=u, slip=(w0 > 0) & (u < slip_weight)
-    )
+    return RobustTwist(twist=twist, weights=w0 * u, robust_weight=u, slip=(w0 > 0) & (u < slip_weight))

@@ -80,7 +80,12 @@ def _band_depth(depth: ArrayLike, rows: Array) -> tuple[Array, Array]:
     height, width = depth.shape
     inside = (rows >= 0) & (rows <= height - 1)
     row = jnp.where(inside, rows, 0.0).astype(jnp.int32)  # also maps NaN rows (invalid angles) to 0
-    z = jnp.asarray(depth).reshape(-1).at[row * width + jnp.arange(width, dtype=jnp.int32)].get(mode="promise_in_bounds")
+    z = (
+        jnp.asarray(depth)
+        .reshape(-1)
+        .at[row * width + jnp.arange(width, dtype=jnp.int32)]
+        .get(mode="promise_in_bounds")
+    )
     return _readings(z, inside)
 
 

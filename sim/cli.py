@@ -24,23 +24,32 @@ def parse_resolution(text: str) -> tuple[int, int]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robot", default="go2", help="go2, badger, or a path to an MJCF file (default go2)")
-    parser.add_argument("--world", default="house", choices=["house", "warehouse"],
-                        help="generated world (default house)")  # fmt: skip
+    parser.add_argument(
+        "--world", default="house", choices=["house", "warehouse"], help="generated world (default house)"
+    )
     parser.add_argument("--robots", type=int, default=4, help="number of robots (default 4)")
-    parser.add_argument("--worlds", type=int, default=1,
-                        help="distinct worlds; robot i walks world i %% worlds (default 1)")  # fmt: skip
-    parser.add_argument("--seconds", type=float, default=10.0,
-                        help="simulated time, s, rounded up to whole chunks (default 10)")  # fmt: skip
+    parser.add_argument(
+        "--worlds", type=int, default=1, help="distinct worlds; robot i walks world i %% worlds (default 1)"
+    )
+    parser.add_argument(
+        "--seconds", type=float, default=10.0, help="simulated time, s, rounded up to whole chunks (default 10)"
+    )
     parser.add_argument("--style", default="calm", choices=["calm", "aggressive"], help="gait style (default calm)")
-    parser.add_argument("--seed", type=int, default=0,
-                        help="random seed of worlds, routes, randomization and noise (default 0)")  # fmt: skip
-    parser.add_argument("--out", required=True,
-                        help="output folder (created; replaced only if it holds an earlier simulation)")  # fmt: skip
+    parser.add_argument(
+        "--seed", type=int, default=0, help="random seed of worlds, routes, randomization and noise (default 0)"
+    )
+    parser.add_argument(
+        "--out", required=True, help="output folder (created; replaced only if it holds an earlier simulation)"
+    )
     parser.add_argument("--no-depth", action="store_true", help="skip the depth camera (default: record depth)")
-    parser.add_argument("--resolution", type=parse_resolution, default=(160, 120),
-                        help="depth image WxH, px (default 160x120)")  # fmt: skip
-    parser.add_argument("--no-randomize", action="store_true",
-                        help="nominal masses, friction, motors and noise (default: randomized per robot)")  # fmt: skip
+    parser.add_argument(
+        "--resolution", type=parse_resolution, default=(160, 120), help="depth image WxH, px (default 160x120)"
+    )
+    parser.add_argument(
+        "--no-randomize",
+        action="store_true",
+        help="nominal masses, friction, motors and noise (default: randomized per robot)",
+    )
     add_devices_argument(parser)
 
 
@@ -59,11 +68,22 @@ def write_fleet(log, folder: str | Path) -> Path:
     for i in range(log.n_robots):
         pose = np.asarray(log["gt_pose"][i], np.float64)
         traj = TumTrajectory(t, pose[:, :3], np.c_[pose[:, 4:7], pose[:, 3:4]])
-        write_tum(folder / f"gt_{i:04d}.tum", traj, header=f"ground truth base pose, robot {i} of {config.robot} in {config.world}")
+        write_tum(
+            folder / f"gt_{i:04d}.tum",
+            traj,
+            header=f"ground truth base pose, robot {i} of {config.robot} in {config.world}",
+        )
     for k, world_map in enumerate(log.maps()):
         save_map(folder / f"map_{config.world}_{k}.yaml", world_map)
-    write_json(folder / "summary.json", {"kind": SUMMARY_KIND, "config": dataclasses.asdict(config),
-                                         "samples": int(t.size), "fallen": np.asarray(log["fallen"]).tolist()})  # fmt: skip
+    write_json(
+        folder / "summary.json",
+        {
+            "kind": SUMMARY_KIND,
+            "config": dataclasses.asdict(config),
+            "samples": int(t.size),
+            "fallen": np.asarray(log["fallen"]).tolist(),
+        },
+    )
     return folder / "fleet.npz"
 
 

@@ -45,8 +45,19 @@ from . import memory
 from . import sensors as S
 from .robot_step import _R_MJCAM_OPTICAL, GT_CONTACT_MIN_FORCE, FleetFunctions, RobotSetup, RobotState, make_functions
 
-__all__ = ["GT_CONTACT_MIN_FORCE", "MAX_FRAMES_PER_CHUNK", "Fleet", "FleetConfig", "FleetFunctions", "RobotSetup", "RobotState",
-           "build_fleet", "init", "n_chunks", "run_chunk"]
+__all__ = [
+    "GT_CONTACT_MIN_FORCE",
+    "MAX_FRAMES_PER_CHUNK",
+    "Fleet",
+    "FleetConfig",
+    "FleetFunctions",
+    "RobotSetup",
+    "RobotState",
+    "build_fleet",
+    "init",
+    "n_chunks",
+    "run_chunk",
+]
 from .locomotion import Gait, GaitParams
 from .route_follow import RouteParams
 from .routes import plan_loop
@@ -276,8 +287,13 @@ def _bind(fleet: Fleet, qpos0: Array, gyro_adr: int, acc_adr: int) -> None:
     `memory.PLAN_FRACTION` of the budget, then XLA's analysis of the compiled chunk is checked.
     """
     cfg = fleet.config
-    fleet._structure = (dataclasses.replace(cfg, seed=0, n_robots=1, n_worlds=1, style="calm", randomize=True,
-                                            frames_per_chunk=None, devices=None), gyro_adr, acc_adr)  # fmt: skip
+    fleet._structure = (
+        dataclasses.replace(
+            cfg, seed=0, n_robots=1, n_worlds=1, style="calm", randomize=True, frames_per_chunk=None, devices=None
+        ),
+        gyro_adr,
+        acc_adr,
+    )
     fleet.mesh = parallel.mesh(cfg.devices)
     fleet.n_batch = parallel.padded_size(cfg.n_robots, fleet.mesh)
     axes = (fleet.model_in_axes, 0, 0, 0)
@@ -315,7 +331,11 @@ def _bind(fleet: Fleet, qpos0: Array, gyro_adr: int, acc_adr: int) -> None:
         # with the planning headroom; both scale with the robot count.
         at_one = total - per_frame * (frames - 1) if frames >= 1 else int((fixed + per_frame) / memory.PLAN_FRACTION)
         n_max = memory.largest_fleet(fleet.n_batch // fleet.mesh.size, at_one, budget) * fleet.mesh.size
-        what = f"a chunk of {cfg.frames_per_chunk} frames" if cfg.frames_per_chunk and frames >= 1 else "even a 1-frame chunk"
+        what = (
+            f"a chunk of {cfg.frames_per_chunk} frames"
+            if cfg.frames_per_chunk and frames >= 1
+            else "even a 1-frame chunk"
+        )
         per = f" per device on {fleet.mesh.size} devices" if fleet.mesh.size > 1 else ""
         raise ValueError(
             f"a fleet of {cfg.n_robots} robots does not fit: {what} needs more than the "

@@ -43,9 +43,7 @@ def leg_fk(geom: LegGeometry, q_leg: Float[Array, "*L 3"]) -> Float[Array, "*L 3
     return geom.p_trunk_hip + SO3.from_x_radians(angle[..., 0]).apply(v)
 
 
-def leg_ik(
-    geom: LegGeometry, p_trunk_foot: Float[Array, "*L 3"]
-) -> tuple[Float[Array, "*L 3"], Bool[Array, "*L"]]:
+def leg_ik(geom: LegGeometry, p_trunk_foot: Float[Array, "*L 3"]) -> tuple[Float[Array, "*L 3"], Bool[Array, "*L"]]:
     """Joint angles (rad) placing each foot centre at `p_trunk_foot` (m, trunk frame).
 
     Targets out of reach are pulled onto the reachable shell along the same direction and the

@@ -295,9 +295,7 @@ def _home_level(gait: Gait, params: GaitParams) -> Float[Array, "4 3"]:
     return gait.p_base_foot_home.at[:, 2].set(z)
 
 
-def base_to_leg_trunk(
-    gait: Gait, p_base_foot: Float[Array, "4 3"], q_spine: Float[Array, ""]
-) -> Float[Array, "4 3"]:
+def base_to_leg_trunk(gait: Gait, p_base_foot: Float[Array, "4 3"], q_spine: Float[Array, ""]) -> Float[Array, "4 3"]:
     """Foot points from the base frame into the frame of the trunk carrying each leg (m).
 
     Legs on the rear trunk of a spined robot see the point rotated back by the spine angle (rad)

@@ -13,7 +13,8 @@ when the soft contact is still compressed but no longer pushes.
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -32,6 +33,7 @@ _MAX_TILT_COS = 0.5  # cos(60 deg)
 GT_CONTACT_MIN_FORCE = 1.0  # N: normal force above which a foot counts as in contact (0.7% of go2's weight)
 # MuJoCo cameras look along -z with +y up; the optical frame looks along +z with +y down.
 _R_MJCAM_OPTICAL = np.diag([1.0, -1.0, -1.0])
+
 
 class RobotState(eqx.Module):
     """State of one robot between physics steps."""
@@ -71,8 +73,9 @@ class FleetFunctions(NamedTuple):
 
 def make_functions(fleet, gyro_adr: int, acc_adr: int) -> FleetFunctions:
     """The pure functions of `fleet` (a `jaxquad.sim.fleet.Fleet`; its static parts are closed over)."""
-    from jaxquad._mjx import mjx
     from mujoco.mjx._src.support import contact_force  # not re-exported by mjx
+
+    from jaxquad._mjx import mjx
 
     robot, gait, cfg = fleet.robot, fleet.gait, fleet.config
     dt = jnp.float32(fleet.dt)
@@ -139,7 +142,13 @@ def make_functions(fleet, gyro_adr: int, acc_adr: int) -> FleetFunctions:
         key, k_imu, k_enc, k_tau = jax.random.split(s.key, 4)
         quat = d.qpos[qa + 3 : qa + 7]
         imu, (gyro, acc, quat_meas) = S.imu_step(
-            setup.noise, s.imu, k_imu, d.sensordata[gyro_adr : gyro_adr + 3], d.sensordata[acc_adr : acc_adr + 3], quat, log_dt
+            setup.noise,
+            s.imu,
+            k_imu,
+            d.sensordata[gyro_adr : gyro_adr + 3],
+            d.sensordata[acc_adr : acc_adr + 3],
+            quat,
+            log_dt,
         )
         q, qd = S.encoders(setup.noise, k_enc, d.qpos[qpos_adr], d.qvel[dof_adr])
         tau = S.joint_torque(setup.noise, k_tau, d.actuator_force)
@@ -148,17 +157,26 @@ def make_functions(fleet, gyro_adr: int, acc_adr: int) -> FleetFunctions:
         con = d._impl.contact
         f_con = jnp.stack([contact_force(model, d, i)[:3] for i in range(con.geom.shape[0])])
         f_world = jnp.einsum("ci,cij->cj", f_con, con.frame)
-        sign = jnp.where(con.geom[:, 1:2] == foot_geoms[None], 1.0, 0.0) - jnp.where(con.geom[:, 0:1] == foot_geoms[None], 1.0, 0.0)
+        sign = jnp.where(con.geom[:, 1:2] == foot_geoms[None], 1.0, 0.0) - jnp.where(
+            con.geom[:, 0:1] == foot_geoms[None], 1.0, 0.0
+        )
         gt_force = jnp.einsum("cf,cj->fj", sign, f_world)
         contact = jnp.abs(sign).T @ f_con[:, 0] > GT_CONTACT_MIN_FORCE
         xy = d.qpos[qa : qa + 2]
         inside = _inside_any_box(setup.boxes, xy)
         s = eqx.tree_at(lambda r: (r.imu, r.key, r.collided), s, (imu, key, s.collided | inside))
         out = dict(
-            q=q, qd=qd, tau=tau, gyro=gyro, acc=acc, quat_wxyz=quat_meas,
+            q=q,
+            qd=qd,
+            tau=tau,
+            gyro=gyro,
+            acc=acc,
+            quat_wxyz=quat_meas,
             gt_pose=jnp.concatenate([d.qpos[qa : qa + 3], quat]),
-            gt_contact=contact, gt_force=gt_force, valid=~s.fallen,
-        )  # fmt: skip
+            gt_contact=contact,
+            gt_force=gt_force,
+            valid=~s.fallen,
+        )
         return s, out
 
     def frame(model, setup: RobotSetup, s: RobotState):
@@ -190,7 +208,6 @@ def make_functions(fleet, gyro_adr: int, acc_adr: int) -> FleetFunctions:
         return s, outs
 
     return FleetFunctions(init_one, physics_step, sample, frame, chunk_one, drive, camera)
-
 
 
 def _inside_any_box(boxes: Boxes, xy: Float[Array, " 2"]) -> Bool[Array, ""]:

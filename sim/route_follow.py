@@ -21,9 +21,7 @@ class RouteParams(eqx.Module):
 
     @classmethod
     def default(cls, v_max: float = 0.4, **overrides: float) -> "RouteParams":
-        values = dict(
-            v_max=v_max, yaw_rate_max=1.0, k_yaw=1.5, k_lateral=0.3, lookahead=0.5, switch_radius=0.3
-        )
+        values = dict(v_max=v_max, yaw_rate_max=1.0, k_yaw=1.5, k_lateral=0.3, lookahead=0.5, switch_radius=0.3)
         values.update(overrides)
         return cls(**{k: jnp.asarray(v, jnp.float32) for k, v in values.items()})
 

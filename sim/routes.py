@@ -104,7 +104,9 @@ def plan_loop(
         while c != g:
             c = pred[k, c]
             if c < 0:
-                raise ValueError(f"{world.kind} world (seed {world.seed}): anchors {k} and {(k + 1) % len(goals)} are not connected")
+                raise ValueError(
+                    f"{world.kind} world (seed {world.seed}): anchors {k} and {(k + 1) % len(goals)} are not connected"
+                )
             leg.append(c)
         cells = leg[::-1]
         # Each leg is shortened on its own, so every anchor stays a vertex of the loop.

@@ -79,7 +79,9 @@ class SensorNoise(eqx.Module):
     def scaled(self, s: Float[Array, ""]) -> "SensorNoise":
         """Every noise level times s (quantization steps kept)."""
         keep = {"q_step", "qd_step"}
-        return SensorNoise(**{f: getattr(self, f) if f in keep else getattr(self, f) * s for f in self.__dataclass_fields__})
+        return SensorNoise(
+            **{f: getattr(self, f) if f in keep else getattr(self, f) * s for f in self.__dataclass_fields__}
+        )
 
 
 class ImuState(eqx.Module):
@@ -139,7 +141,9 @@ def encoders(
 def joint_torque(noise: SensorNoise, key: PRNGKeyArray, tau: Float[Array, " nj"]) -> Float[Array, " nj"]:
     """Measured joint torques (N m) from the actuator force."""
     kr, kw = jax.random.split(key)
-    return tau * (1.0 + noise.tau_rel * jax.random.normal(kr, tau.shape)) + noise.tau_white * jax.random.normal(kw, tau.shape)
+    return tau * (1.0 + noise.tau_rel * jax.random.normal(kr, tau.shape)) + noise.tau_white * jax.random.normal(
+        kw, tau.shape
+    )
 
 
 def intrinsics(width: int, height: int, hfov_deg: float = 85.2) -> np.ndarray:

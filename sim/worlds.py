@@ -156,11 +156,15 @@ def _warehouse(rng: np.random.Generator) -> tuple[_Boxes, tuple, np.ndarray]:
     x_lane = (xs[0] - 0.5) / 2 + 0.25  # middle of the west perimeter aisle
     x_lane_e = (xs[-1] + 0.5 + w) / 2 - 0.25
     # Around the south half, west through the cross aisle, around the north half.
-    anchors = np.array([[x_lane, 1.6], [x_lane_e, 1.6], [x_lane_e, y_aisle], [x_lane, y_aisle], [x_lane, d - 1.6], [x_lane_e, d - 1.6]])
+    anchors = np.array(
+        [[x_lane, 1.6], [x_lane_e, 1.6], [x_lane_e, y_aisle], [x_lane, y_aisle], [x_lane, d - 1.6], [x_lane_e, d - 1.6]]
+    )
     bx.keep_out += [(w / 2, y_aisle, w / 2, 1.3)]  # the cross aisle stays open
     bx.keep_out += [(x, y, 0.6, 0.6) for x, y in anchors]
     for _ in range(8):
-        bx.place_free(rng, (1.0, 1.0, w - 1.0, d - 1.0), (1.2, 0.8), rng.uniform(0.15, 1.4), clearance=0.8, yaw_range=0.4)
+        bx.place_free(
+            rng, (1.0, 1.0, w - 1.0, d - 1.0), (1.2, 0.8), rng.uniform(0.15, 1.4), clearance=0.8, yaw_range=0.4
+        )
     return bx, (0.0, 0.0, w, d), anchors
 
 
@@ -200,6 +204,8 @@ def _signed_distance(center, half, yaw, xy):
 def box_signed_distance(world: World, xy: np.ndarray) -> np.ndarray:
     """(…,) planar signed distance (m) from points `xy` (…, 2) to the nearest box footprint."""
     return _signed_distance(world.center, world.half, world.yaw, xy)
+
+
 def occupancy_map(world: World, resolution: float = 0.05, margin: float = 0.5) -> OccupancyMap:
     """Ground-truth map: cells whose centre lies in a box footprint are occupied (100), the rest
     inside the outer walls free (0), outside them unknown (-1)."""

@@ -61,8 +61,11 @@ def grid(out: str) -> None:
     mesh = parallel.mesh(2)
     x = np.arange(20, dtype=np.float32).reshape(4, 5)  # 4 robots x 5 samples
     y = jax.jit(parallel.shard_batched(jax.vmap(jnp.cumsum, out_axes=1), mesh, (0,), 1))(parallel.place(x, mesh))
-    res |= {"time_major_in": x, "d2_time_major": np.asarray(y),
-            "d2_shard_shapes": np.array([s.data.shape for s in y.addressable_shards])}  # fmt: skip
+    res |= {
+        "time_major_in": x,
+        "d2_time_major": np.asarray(y),
+        "d2_shard_shapes": np.array([s.data.shape for s in y.addressable_shards]),
+    }
     np.savez(out, **res)
 
 

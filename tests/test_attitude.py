@@ -101,7 +101,9 @@ def test_bad_readings_are_skipped_not_propagated(run):
 
 def test_vmap_over_robots_and_params_and_grad(run):
     t, R, gyro, acc = synthetic(5.0, np.zeros(3))
-    params = jax.vmap(attitude.AttitudeParams)(jnp.array([0.5, 1.0, 2.0]), jnp.array([0.0, 0.05, 0.1]), jnp.full(3, 0.3))
+    params = jax.vmap(attitude.AttitudeParams)(
+        jnp.array([0.5, 1.0, 2.0]), jnp.array([0.0, 0.05, 0.1]), jnp.full(3, 0.3)
+    )
     batch = jnp.broadcast_to(jnp.asarray(gyro), (3,) + gyro.shape), jnp.broadcast_to(jnp.asarray(acc), (3,) + acc.shape)
     q, _ = jax.vmap(run, in_axes=(0, None, 0, 0, None))(params, jnp.asarray(t), *batch, None)
     assert q.shape == (3, t.size, 4)
@@ -110,7 +112,9 @@ def test_vmap_over_robots_and_params_and_grad(run):
 
     def loss(kp):
         p = attitude.AttitudeParams(kp=kp, ki=jnp.asarray(0.05), acc_gate=jnp.asarray(0.3))
-        qs, _ = attitude.estimate_attitude(p, jnp.asarray(t[:200]), jnp.asarray(gyro[:200]), jnp.asarray(acc[:200]), jnp.array([1.0, 0, 0, 0]))
+        qs, _ = attitude.estimate_attitude(
+            p, jnp.asarray(t[:200]), jnp.asarray(gyro[:200]), jnp.asarray(acc[:200]), jnp.array([1.0, 0, 0, 0])
+        )
         return jnp.sum(qs[-1, 1:] ** 2)
 
     g = jax.grad(loss)(jnp.asarray(1.0))

@@ -27,8 +27,15 @@ def test_kernel_section_json(capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["backend"] == "cpu" and out["jax_version"] and out["device"]
     rows = out["sections"]["kernels"]["rows"]
-    names = {"observer+twist", "observer+twist, scanned", "observer", "twist", "stabilized_scan", "baseline_scan",
-             "level_scan"}
+    names = {
+        "observer+twist",
+        "observer+twist, scanned",
+        "observer",
+        "twist",
+        "stabilized_scan",
+        "baseline_scan",
+        "level_scan",
+    }
     assert {(r["kernel"], r["batch"]) for r in rows} == {(n, b) for n in names for b in (2,)}
     for r in rows:
         assert r["compile_s"] > 0 and r["run_ms"] > 0

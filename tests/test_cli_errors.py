@@ -30,17 +30,27 @@ def _log(T: int = 40, depth: bool = True, tau: bool = True) -> dict:
     """A valid single-robot Go2 log standing still (ground truth, torques, a few small depth frames)."""
     rng = np.random.default_rng(0)
     log = {
-        "t": np.arange(T) * 0.005, "robot": np.array("go2"), "joint_names": np.array(GO2_JOINTS),
-        "q": np.tile([0.0, 0.8, -1.5], (T, 4)), "qd": np.zeros((T, 12)), "gyro": rng.normal(0, 0.01, (T, 3)),
-        "acc": np.tile([0.0, 0.0, 9.81], (T, 1)), "quat_wxyz": np.tile([1.0, 0, 0, 0], (T, 1)),
-        "gt_pose": np.tile([0.0, 0, 0.3, 1, 0, 0, 0], (T, 1)), "gt_contact": np.ones((T, 4), bool),
+        "t": np.arange(T) * 0.005,
+        "robot": np.array("go2"),
+        "joint_names": np.array(GO2_JOINTS),
+        "q": np.tile([0.0, 0.8, -1.5], (T, 4)),
+        "qd": np.zeros((T, 12)),
+        "gyro": rng.normal(0, 0.01, (T, 3)),
+        "acc": np.tile([0.0, 0.0, 9.81], (T, 1)),
+        "quat_wxyz": np.tile([1.0, 0, 0, 0], (T, 1)),
+        "gt_pose": np.tile([0.0, 0, 0.3, 1, 0, 0, 0], (T, 1)),
+        "gt_contact": np.ones((T, 4), bool),
         "gt_force": np.tile([0.0, 0, 37.0], (T, 4, 1)),
-    }  # fmt: skip
+    }
     if tau:
         log["tau"] = np.zeros((T, 12))
     if depth:
-        log.update(depth=rng.uniform(0.5, 3.0, (3, 12, 16)).astype(np.float32), depth_t=np.array([0.0, 0.05, 0.1]),
-                   K=np.array([[8.0, 0, 7.5], [0, 8, 5.5], [0, 0, 1]]), T_base_camera=np.eye(4))  # fmt: skip
+        log.update(
+            depth=rng.uniform(0.5, 3.0, (3, 12, 16)).astype(np.float32),
+            depth_t=np.array([0.0, 0.05, 0.1]),
+            K=np.array([[8.0, 0, 7.5], [0, 8, 5.5], [0, 0, 1]]),
+            T_base_camera=np.eye(4),
+        )
     return log
 
 
@@ -70,8 +80,9 @@ def f(tmp_path_factory) -> dict[str, str]:
     write_tum(d / "ref.tum", traj)
     save_map(d / "map.yaml", OccupancyMap(np.zeros((40, 40), np.int8), 0.1, (-2.0, -2.0, 0.0)))
     (d / "graph.g2o").write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
-    shutil.copy(Path(importlib.import_module("jaxquad.ros").__file__).parent / "examples" / "generic.yaml",
-                d / "topics.yaml")  # fmt: skip
+    shutil.copy(
+        Path(importlib.import_module("jaxquad.ros").__file__).parent / "examples" / "generic.yaml", d / "topics.yaml"
+    )
     (d / "empty.bag").write_bytes(b"")
     (d / "text.bag").write_text("not a bag\n")
     for name in ("res_empty", "res_text", "res_keys"):
@@ -81,8 +92,12 @@ def f(tmp_path_factory) -> dict[str, str]:
     (d / "res_text" / "a_scans.npz").write_text("scans\n")
     np.savez(d / "res_keys" / "a_scans.npz", depth_t=np.zeros(2))
     paths = {p.name.replace(".", "_"): str(p) for p in d.iterdir()}
-    return paths | {"dir": str(d), "new": str(d / "new_out"), "new_yaml": str(d / "new.yaml"),
-                    "missing": str(d / "missing.npz")}  # fmt: skip
+    return paths | {
+        "dir": str(d),
+        "new": str(d / "new_out"),
+        "new_yaml": str(d / "new.yaml"),
+        "missing": str(d / "missing.npz"),
+    }
 
 
 def _fails(argv: list[str], capsys) -> str:
@@ -303,12 +318,20 @@ def test_read_only_output_folder_fails_fast(f, tmp_path, capsys, monkeypatch):
 
         monkeypatch.setattr(tempfile, "mkstemp", refusing)
     try:
-        for template in ("estimate {log_npz} --out {ro}/out", "simulate --out {ro}/out", "demo --out {ro}/out",
-                         "tune --log {log_npz} --method grid --out {ro}/p.yaml", "vo {log_npz} --out {ro}/out",
-                         "eval {ref_tum} {ref_tum} --plot {ro}/p.png", "posegraph {graph_g2o} --out {ro}/o.g2o",
-                         "localize {log_npz} --map {map_yaml} --out {ro}/out --global", "navigate --out {ro}/out",
-                         "export {res_keys} --bag {ro}/bag", "slam {log_npz} --out {ro}/out",
-                         "convert {text_bag} --topics {topics_yaml} --robot go2 --out {ro}/log.npz"):  # fmt: skip
+        for template in (
+            "estimate {log_npz} --out {ro}/out",
+            "simulate --out {ro}/out",
+            "demo --out {ro}/out",
+            "tune --log {log_npz} --method grid --out {ro}/p.yaml",
+            "vo {log_npz} --out {ro}/out",
+            "eval {ref_tum} {ref_tum} --plot {ro}/p.png",
+            "posegraph {graph_g2o} --out {ro}/o.g2o",
+            "localize {log_npz} --map {map_yaml} --out {ro}/out --global",
+            "navigate --out {ro}/out",
+            "export {res_keys} --bag {ro}/bag",
+            "slam {log_npz} --out {ro}/out",
+            "convert {text_bag} --topics {topics_yaml} --robot go2 --out {ro}/log.npz",
+        ):
             line = _fails([a.format(ro=ro, **f) for a in template.split()], capsys)
             assert "cannot write" in line and str(ro) in line, line
         assert not list(ro.iterdir())
@@ -319,8 +342,13 @@ def test_read_only_output_folder_fails_fast(f, tmp_path, capsys, monkeypatch):
 def test_unknown_robot_as_a_user_runs_it(tmp_path):
     """`python -m jaxquad simulate --robot spot --out x/`: exit 1, one line, no x/, in seconds."""
     t0 = time.perf_counter()
-    r = subprocess.run([sys.executable, "-m", "jaxquad", "simulate", "--robot", "spot", "--out", "x/"], cwd=tmp_path,
-                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    r = subprocess.run(
+        [sys.executable, "-m", "jaxquad", "simulate", "--robot", "spot", "--out", "x/"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 1 and r.stdout == ""
     assert r.stderr.startswith("jaxquad simulate: error: ") and r.stderr.count("\n") == 1, r.stderr
     assert "spot" in r.stderr and "Traceback" not in r.stderr
@@ -341,8 +369,14 @@ def test_tune_on_a_single_robot_log_with_the_default_holdout(f, tmp_path, capsys
     assert printed["holdout_requested"] == 0.25 and printed["holdout"] == 0.0
     assert printed["robots_train"] == 1 and printed["robots_heldout"] == 0 and "tuned_heldout" not in printed
     assert printed["params"] == yaml.safe_load(out.read_text())
-    assert printed["observer_inputs"] == {"max_gap_s": 0.05, "torque_saturation": 0.99, "chunk": 4096, "axes": "xyz",
-                                          "passive": True, "rows": "joints"}  # fmt: skip
+    assert printed["observer_inputs"] == {
+        "max_gap_s": 0.05,
+        "torque_saturation": 0.99,
+        "chunk": 4096,
+        "axes": "xyz",
+        "passive": True,
+        "rows": "joints",
+    }
     assert set(printed["options"]) == {"chunk", "f1_tolerance", "top_k", "max_delay_s", "devices"}
     assert printed["base_params"]["bandwidth"] == 30.0  # the paper's, around which the grid lies
 

@@ -35,9 +35,15 @@ _run_robot_batch = jax.jit(jax.vmap(_scan, in_axes=(None, 0, 0, 0, 0, 0)))
 
 def _params(mode, n_feet=1, bandwidth=30.0, **kw):
     base = dict(
-        bandwidth=bandwidth, sharpness=100.0, f_max=100.0, alpha=np.full(n_feet, 0.2),
-        threshold_on=np.full(n_feet, 1.0), threshold_off=np.full(n_feet, 1.0), soft_temperature=0.25,
-        pinv_damping=0.0, mode=mode,
+        bandwidth=bandwidth,
+        sharpness=100.0,
+        f_max=100.0,
+        alpha=np.full(n_feet, 0.2),
+        threshold_on=np.full(n_feet, 1.0),
+        threshold_off=np.full(n_feet, 1.0),
+        soft_temperature=0.25,
+        pinv_damping=0.0,
+        mode=mode,
     )
     base.update(kw)
     return ObserverParams(**{k: (np.asarray(v, np.float32) if k != "mode" else v) for k, v in base.items()})
@@ -52,8 +58,10 @@ def _one_dof_inputs(force, dt, tau=0.0, p0=0.0):
     ps = p0 + np.cumsum((tau + force) * dt)
     n = len(force)
     return (
-        jnp.asarray(ps[:, None], jnp.float32), jnp.full((n, 1), tau, jnp.float32),
-        jnp.ones((n, 1, 1), jnp.float32), jnp.full(n, dt, jnp.float32),
+        jnp.asarray(ps[:, None], jnp.float32),
+        jnp.full((n, 1), tau, jnp.float32),
+        jnp.ones((n, 1, 1), jnp.float32),
+        jnp.full(n, dt, jnp.float32),
     )
 
 
@@ -150,7 +158,9 @@ def test_mixed_step_solves_its_implicit_equations_on_random_multi_foot_inputs():
     params = jax.vmap(lambda bw: dataclasses.replace(base, bandwidth=bw))(jnp.asarray(b, jnp.float32))
     state = _OBS.init(base, jnp.zeros(nv), F)
     states = jax.tree.map(lambda x: jnp.broadcast_to(x, (n, *x.shape)), state)
-    states = eqx.tree_at(lambda s: (s.p_hat, s.f_hat), states, (jnp.asarray(p_hat, jnp.float32), jnp.asarray(f_old, jnp.float32)))
+    states = eqx.tree_at(
+        lambda s: (s.p_hat, s.f_hat), states, (jnp.asarray(p_hat, jnp.float32), jnp.asarray(f_old, jnp.float32))
+    )
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     new, est = jax.jit(jax.vmap(_OBS.step))(params, states, f32(p), f32(tau), f32(J), f32(dt))
     assert bool(est.valid.all())
@@ -196,7 +206,12 @@ def _leg(name, x, y, side):
       </body>"""
 
 
-_LEGS = [("FL", 0.1934, 0.0465, 1), ("FR", 0.1934, -0.0465, -1), ("RL", -0.1934, 0.0465, 1), ("RR", -0.1934, -0.0465, -1)]
+_LEGS = [
+    ("FL", 0.1934, 0.0465, 1),
+    ("FR", 0.1934, -0.0465, -1),
+    ("RL", -0.1934, 0.0465, 1),
+    ("RR", -0.1934, -0.0465, -1),
+]
 _QUAD_XML = f"""
 <mujoco model="quad">
   <option timestep="0.001" gravity="0 0 -9.81"><flag contact="disable"/></option>
@@ -288,8 +303,10 @@ def _quad_inputs(quad, n=None):
     """Samples 1..n as observer inputs; sample 0 initialises the state (see _p0)."""
     n = len(quad["t"]) - 1 if n is None else n
     return (
-        jnp.asarray(quad["p"][1 : n + 1], jnp.float32), jnp.asarray(quad["tau"][1 : n + 1], jnp.float32),
-        jnp.asarray(quad["J"][1 : n + 1], jnp.float32), jnp.full(n, quad["dt"], jnp.float32),
+        jnp.asarray(quad["p"][1 : n + 1], jnp.float32),
+        jnp.asarray(quad["tau"][1 : n + 1], jnp.float32),
+        jnp.asarray(quad["J"][1 : n + 1], jnp.float32),
+        jnp.full(n, quad["dt"], jnp.float32),
     )
 
 
@@ -336,7 +353,9 @@ def test_go2_with_library_momentum_terms(record_property):
     m.actuator_ctrllimited[:] = 0
     sim = _simulate(m, robot.base_body_id, robot.foot_site_ids, robot.qpos_adr, robot.dof_adr)
     terms = jax.jit(jax.vmap(lambda q, v, tau: momentum_terms(robot, q, v, tau, passive=False)))
-    p, tau_bar, J_z = (np.asarray(x, np.float64) for x in terms(*(jnp.asarray(sim[k]) for k in ("qpos", "qvel", "ctrl"))))
+    p, tau_bar, J_z = (
+        np.asarray(x, np.float64) for x in terms(*(jnp.asarray(sim[k]) for k in ("qpos", "qvel", "ctrl")))
+    )
     np.testing.assert_allclose(p, sim["p"], atol=1e-3 * np.abs(sim["p"]).max())
     np.testing.assert_allclose(tau_bar + sim["support"], sim["tau"], atol=2e-3 * np.abs(sim["tau"]).max())
     np.testing.assert_allclose(J_z, sim["J"], atol=1e-5)
@@ -357,7 +376,9 @@ def test_quadruped_high_bandwidth_at_4ms_samples_stays_within_two_percent(mode):
     # h = b dt = 0.4, where an explicit k2 update of the mixed observer chatters (limit cycle of b^2 dt = 40 N).
     quad = _simulate_quad(4)
     t = quad["t"][1:]
-    est = jax.tree.map(np.asarray, _run(ObserverParams.paper(4, mode, bandwidth=100.0), _p0(quad), *_quad_inputs(quad))[1])
+    est = jax.tree.map(
+        np.asarray, _run(ObserverParams.paper(4, mode, bandwidth=100.0), _p0(quad), *_quad_inputs(quad))[1]
+    )
     for (t0, t1), truth in (((0.35, _T_STEP), _FORCE_BEFORE), ((0.95, _T_END), _FORCE_AFTER)):
         window = (t >= t0) & (t < t1)
         err = np.abs(est.force_z[window] - truth).max(axis=0)
@@ -377,8 +398,10 @@ def test_mixed_mode_detects_a_force_step_sooner_than_plain(quad, quad_estimates,
         assert not est.contact[(t > 0.3) & (t < _T_STEP), 3].any()  # no false contact before the step
         assert est.contact[t >= _T_STEP + 0.1, 3].all()
         record_property(f"lag_{mode}_ms", round(1e3 * lags[mode], 3))
-    print(f"\ncontact detection lag after a 0 -> 25 N step (b = 30 rad/s, dt = 2 ms): "
-          f"plain {1e3 * lags['plain']:.1f} ms, mixed {1e3 * lags['mixed']:.1f} ms")
+    print(
+        f"\ncontact detection lag after a 0 -> 25 N step (b = 30 rad/s, dt = 2 ms): "
+        f"plain {1e3 * lags['plain']:.1f} ms, mixed {1e3 * lags['mixed']:.1f} ms"
+    )
     assert lags["mixed"] < lags["plain"]
 
 

@@ -7,6 +7,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from scipy import ndimage
+
 from jaxquad.kernels.costmap import (
     INSCRIBED,
     LETHAL,
@@ -15,7 +17,6 @@ from jaxquad.kernels.costmap import (
     costmap_from_occupancy,
     distance_transform,
 )
-from scipy import ndimage
 
 _edt = jax.jit(distance_transform)
 _costmap = jax.jit(costmap_from_occupancy)

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from jaxquad import demo, report
-from jaxquad.metrics import scan_map_hits
 from jaxquad.io import OccupancyMap
+from jaxquad.metrics import scan_map_hits
 
 
 def _random_map(rng, rows=40, cols=50, resolution=0.05, origin=(-1.0, 0.5, 0.0)):
@@ -94,18 +94,29 @@ def test_mean_scores_and_table():
     a robot with no matched event (NaN) left out instead of counting as 0 ms."""
     delay = lambda mean, n: {"mean_ms": mean, "mean_abs_ms": abs(mean), "n_matched": n, "n_missed": 1}  # noqa: E731
     robots = [
-        {"scores": {"contacts": {"f1": 0.5, "precision": 1.0, "recall": 0.25},
-                    "drift": {"drift_pct": {"mean": 2.0, "n_segments": 30}, "z_error_final_m": -0.1},
-                    "delays": {"touchdown": delay(4.0, 3), "liftoff": delay(float("nan"), 0)},
-                    "trajectory": {"ate": {"rmse": 0.1}, "rpe_2m": {"rmse": 0.3}}}},
-        {"scores": {"contacts": {"f1": 1.0, "precision": 0.5, "recall": 1.0},
-                    "drift": {"drift_pct": {"mean": 6.0, "n_segments": 10}, "z_error_final_m": -0.3},
-                    "delays": {"touchdown": delay(8.0, 1), "liftoff": delay(10.0, 2)}}},
-    ]  # fmt: skip
+        {
+            "scores": {
+                "contacts": {"f1": 0.5, "precision": 1.0, "recall": 0.25},
+                "drift": {"drift_pct": {"mean": 2.0, "n_segments": 30}, "z_error_final_m": -0.1},
+                "delays": {"touchdown": delay(4.0, 3), "liftoff": delay(float("nan"), 0)},
+                "trajectory": {"ate": {"rmse": 0.1}, "rpe_2m": {"rmse": 0.3}},
+            }
+        },
+        {
+            "scores": {
+                "contacts": {"f1": 1.0, "precision": 0.5, "recall": 1.0},
+                "drift": {"drift_pct": {"mean": 6.0, "n_segments": 10}, "z_error_final_m": -0.3},
+                "delays": {"touchdown": delay(8.0, 1), "liftoff": delay(10.0, 2)},
+            }
+        },
+    ]
     m = demo.mean_scores(robots)
     assert m["contact F1"]["value"] == 0.75 and m["contact F1"]["averages"] == "2 robots"
     assert m["drift % (2-10 m)"]["value"] == (2.0 * 30 + 6.0 * 10) / 40
-    assert m["touchdown delay ms"]["value"] == (4.0 * 3 + 8.0) / 4 and "4 matched events" in m["touchdown delay ms"]["averages"]
+    assert (
+        m["touchdown delay ms"]["value"] == (4.0 * 3 + 8.0) / 4
+        and "4 matched events" in m["touchdown delay ms"]["averages"]
+    )
     assert m["lift-off delay ms"]["value"] == 10.0
     assert m["ATE m"]["value"] == 0.1 and m["ATE m"]["averages"] == "1 robots"
     assert "force RMSE N" not in m
@@ -133,8 +144,13 @@ def test_demo_end_to_end(tmp_path):
         assert (out / name).is_file(), name
     for png in ("trajectories.png", "heights.png", "contacts.png", "scan_frame.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    for name in ("sim/fleet.npz", "sim/gt_0000.tum", "estimate_tuned/robot_000.tum", "estimate_paper/robot_000.tum",
-                 "estimate_truth/robot_000.npz"):
+    for name in (
+        "sim/fleet.npz",
+        "sim/gt_0000.tum",
+        "estimate_tuned/robot_000.tum",
+        "estimate_paper/robot_000.tum",
+        "estimate_truth/robot_000.npz",
+    ):
         assert name in s["files"]
     # The shipped tuned numbers are the default, the paper's beside them, and both are recorded.
     assert list(s["sources"]) == ["tuned", "paper", "truth"]

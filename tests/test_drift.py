@@ -41,11 +41,14 @@ def kitti_drift(p_gt, q_gt, p_est, q_est, lengths, step):
             t = np.linalg.norm(E[:3, 3])
             errors[length].append((100.0 * t / length, np.degrees(r) / length))
     every = [e for length in lengths for e in errors[length]]
-    mean = lambda rows, k: (
-        float(np.mean([e[k] for e in rows])) if rows else float("nan")
+    mean = lambda rows, k: float(np.mean([e[k] for e in rows])) if rows else float("nan")
+    return (
+        mean(every, 0),
+        mean(every, 1),
+        [mean(errors[x], 0) for x in lengths],
+        [mean(errors[x], 1) for x in lengths],
+        [len(errors[x]) for x in lengths],
     )
-    return (mean(every, 0), mean(every, 1), [mean(errors[x], 0) for x in lengths],
-            [mean(errors[x], 1) for x in lengths], [len(errors[x]) for x in lengths])  # fmt: skip
 
 
 def _loop(n, rng, noise, turns=1.0):
@@ -72,15 +75,11 @@ def _line(n, h, yaw=0.3):
 def _first_exceeding_steps(length, h):
     """Poses from a segment's start to its end on a uniform line: the first k with k h > L."""
     k = int(np.floor(length / h)) + 1
-    assert (
-        abs(length / h - round(length / h)) > 1e-3
-    )  # away from ties, so rounding cannot flip k
+    assert abs(length / h - round(length / h)) > 1e-3  # away from ties, so rounding cannot flip k
     return k
 
 
-@pytest.mark.parametrize(
-    ("lengths", "step", "seed"), [((2.0, 5.0, 10.0), 10, 0), ((1.5, 7.0, 60.0), 3, 1)]
-)
+@pytest.mark.parametrize(("lengths", "step", "seed"), [((2.0, 5.0, 10.0), 10, 0), ((1.5, 7.0, 60.0), 3, 1)])
 def test_matches_kitti_definition(lengths, step, seed):
     p, q, p_est, q_est = _loop(400, np.random.default_rng(seed), 0.01)
     d = evaluate_drift(p, q, p_est, q_est, lengths, step)
@@ -88,14 +87,10 @@ def test_matches_kitti_definition(lengths, step, seed):
     np.testing.assert_array_equal(d.n_segments_per_length, n_len)
     assert d.n_segments == sum(n_len) and d.step == step
     np.testing.assert_allclose(d.trans_pct, t, rtol=1e-9)
-    np.testing.assert_allclose(
-        d.rot_deg_per_m, r, rtol=1e-6
-    )  # acos in the oracle loses digits near 0
+    np.testing.assert_allclose(d.rot_deg_per_m, r, rtol=1e-6)  # acos in the oracle loses digits near 0
     np.testing.assert_allclose(d.trans_pct_per_length, t_len, rtol=1e-9)
     np.testing.assert_allclose(d.rot_deg_per_m_per_length, r_len, rtol=1e-6)
-    assert (
-        d.trans_pct > 0.1 and d.rot_deg_per_m > 0.01
-    )  # a real error, not a trivially zero one
+    assert d.trans_pct > 0.1 and d.rot_deg_per_m > 0.01  # a real error, not a trivially zero one
 
 
 def test_alignment_free():
@@ -108,12 +103,8 @@ def test_alignment_free():
         (R * Rotation.from_quat(q_est)).as_quat(),
     )
     d = evaluate_drift(p, q, p_est, q_est)
-    np.testing.assert_allclose(
-        moved.trans_pct_per_length, d.trans_pct_per_length, rtol=1e-9
-    )
-    np.testing.assert_allclose(
-        moved.rot_deg_per_m_per_length, d.rot_deg_per_m_per_length, rtol=1e-6
-    )
+    np.testing.assert_allclose(moved.trans_pct_per_length, d.trans_pct_per_length, rtol=1e-9)
+    np.testing.assert_allclose(moved.rot_deg_per_m_per_length, d.rot_deg_per_m_per_length, rtol=1e-6)
 
 
 def test_perfect_estimate_is_zero():
@@ -131,18 +122,11 @@ def test_scaled_and_stationary_on_a_line(s):
     p, q = _line(600, h)
     p_est = s * p + [1.0, 2.0, 0.5]  # an offset changes nothing
     d = evaluate_drift(p, q, p_est, q, lengths)
-    expected = [
-        100 * abs(1 - s) * _first_exceeding_steps(length, h) * h / length
-        for length in lengths
-    ]
+    expected = [100 * abs(1 - s) * _first_exceeding_steps(length, h) * h / length for length in lengths]
     np.testing.assert_allclose(d.trans_pct_per_length, expected, rtol=1e-9)
-    n_len = [
-        len(range(0, 600 - _first_exceeding_steps(length, h), 10)) for length in lengths
-    ]
+    n_len = [len(range(0, 600 - _first_exceeding_steps(length, h), 10)) for length in lengths]
     np.testing.assert_array_equal(d.n_segments_per_length, n_len)
-    np.testing.assert_allclose(
-        d.trans_pct, np.dot(expected, n_len) / sum(n_len), rtol=1e-9
-    )
+    np.testing.assert_allclose(d.trans_pct, np.dot(expected, n_len) / sum(n_len), rtol=1e-9)
     np.testing.assert_allclose(d.rot_deg_per_m, 0.0, atol=1e-9)
     if s == 0.0:
         assert 100.0 <= d.trans_pct < 101.6
@@ -159,39 +143,31 @@ def test_turning_in_place_closed_form():
     np.testing.assert_allclose(d.rot_deg_per_m, np.degrees(w * k) / length, rtol=1e-9)
     # Translation error: the start heading w i rotates the true chord k h: 2 k h sin(w i / 2), averaged.
     i = np.arange(0, 200 - k)
-    np.testing.assert_allclose(
-        d.trans_pct, 100 * np.mean(2 * k * h * np.sin(w * i / 2)) / length, rtol=1e-9
-    )
+    np.testing.assert_allclose(d.trans_pct, 100 * np.mean(2 * k * h * np.sin(w * i / 2)) / length, rtol=1e-9)
 
 
 def test_too_short_is_nan_with_zero_segments():
     p, q = _line(50, 0.03)  # 1.47 m of path
     d = evaluate_drift(p, q, p, q, (1.0, 2.0))
-    np.testing.assert_array_equal(
-        d.n_segments_per_length, [len(range(0, 50 - 34, 10)), 0]
-    )
-    assert np.isfinite(d.trans_pct_per_length[0]) and np.isnan(
-        d.trans_pct_per_length[1]
-    )
+    np.testing.assert_array_equal(d.n_segments_per_length, [len(range(0, 50 - 34, 10)), 0])
+    assert np.isfinite(d.trans_pct_per_length[0]) and np.isnan(d.trans_pct_per_length[1])
     assert np.isfinite(d.trans_pct)  # the overall mean covers the segments there are
     none = evaluate_drift(p, q, p, q, (2.0, 5.0))
-    assert (
-        none.n_segments == 0
-        and np.isnan(none.trans_pct)
-        and np.isnan(none.rot_deg_per_m)
-    )
+    assert none.n_segments == 0 and np.isnan(none.trans_pct) and np.isnan(none.rot_deg_per_m)
     assert np.all(np.isnan(none.rot_deg_per_m_per_length))
-    empty = evaluate_drift(
-        np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros((0, 4))
-    )
+    empty = evaluate_drift(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros((0, 4)))
     assert empty.n_segments == 0 and np.isnan(empty.trans_pct)
 
 
 def test_bad_input_is_one_line():
     p, q = _line(50, 0.03)
-    for args, message in [((p, q, p, q, (0.0,)), "positive"), ((p, q, p, q, (2.0,), 0), "step"),
-                          ((p, q, p[:-1], q[:-1]), "arrays twice"), ((p * np.nan, q, p, q), "NaN"),
-                          ((p, q, p, 0 * q), "zero quaternion")]:  # fmt: skip
+    for args, message in [
+        ((p, q, p, q, (0.0,)), "positive"),
+        ((p, q, p, q, (2.0,), 0), "step"),
+        ((p, q, p[:-1], q[:-1]), "arrays twice"),
+        ((p * np.nan, q, p, q), "NaN"),
+        ((p, q, p, 0 * q), "zero quaternion"),
+    ]:
         with pytest.raises(ValueError, match=message):
             evaluate_drift(*args)
 
@@ -201,17 +177,16 @@ def test_batched_float32_matches_single_float64():
     trajs = [_loop(300, rng, 0.005 * (k + 1)) for k in range(3)]
     arrays = [np.stack([t[f] for t in trajs]).astype(np.float32) for f in range(4)]
     batch = evaluate_batch(*arrays, align="se3")
-    assert (
-        batch.drift.trans_pct.dtype == np.float32
-        and batch.drift.trans_pct.shape == (3,)
-    )
+    assert batch.drift.trans_pct.dtype == np.float32 and batch.drift.trans_pct.shape == (3,)
     for k in range(len(trajs)):
         single = evaluate_drift(*(a[k].astype(np.float64) for a in arrays))
         np.testing.assert_array_equal(
             np.asarray(batch.drift.n_segments_per_length)[k],
             single.n_segments_per_length,
         )
-        np.testing.assert_allclose(np.asarray(batch.drift.trans_pct_per_length)[k], single.trans_pct_per_length,
-                                   rtol=2e-3)  # fmt: skip
-        np.testing.assert_allclose(np.asarray(batch.drift.rot_deg_per_m_per_length)[k],
-                                   single.rot_deg_per_m_per_length, rtol=2e-3)  # fmt: skip
+        np.testing.assert_allclose(
+            np.asarray(batch.drift.trans_pct_per_length)[k], single.trans_pct_per_length, rtol=2e-3
+        )
+        np.testing.assert_allclose(
+            np.asarray(batch.drift.rot_deg_per_m_per_length)[k], single.rot_deg_per_m_per_length, rtol=2e-3
+        )

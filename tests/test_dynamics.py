@@ -218,7 +218,9 @@ def test_momentum_terms_match_mujoco(case):
         passive = d.qfrc_passive + _friction_model(robot, qvel[i])
         np.testing.assert_allclose(out["passive"][i], passive, atol=1e-9)
         np.testing.assert_allclose(out["tau_bar"][i], rigid + passive, atol=1e-6)
-        np.testing.assert_allclose(out["passive_slow"][i], d.qfrc_passive + _friction_model(robot, qvel[i], 2.0), atol=1e-9)
+        np.testing.assert_allclose(
+            out["passive_slow"][i], d.qfrc_passive + _friction_model(robot, qvel[i], 2.0), atol=1e-9
+        )
     assert np.abs(out["passive"][:-1, robot.dof_adr]).max() > 0.1  # damping and friction present
 
 

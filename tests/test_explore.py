@@ -3,9 +3,9 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxquad.kernels import mppi
 
 from jaxquad import nav
+from jaxquad.kernels import mppi
 
 RES = 0.05
 NAV = nav.NavParams.default(n_samples=128, horizon=25, n_path_points=48, path_stride=3, replan_ticks=10)

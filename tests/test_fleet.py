@@ -36,7 +36,9 @@ def test_fleet_run(robot, tmp_path):
     for i in range(n):
         traj = read_tum(tmp_path / "a" / f"gt_{i:04d}.tum")
         np.testing.assert_allclose(traj.p_world_body, log["gt_pose"][i, :, :3], atol=1e-6)
-        np.testing.assert_allclose(np.abs(np.sum(traj.q_world_body_xyzw * log["gt_pose"][i, :, [4, 5, 6, 3]].T, -1)), 1.0, atol=1e-5)
+        np.testing.assert_allclose(
+            np.abs(np.sum(traj.q_world_body_xyzw * log["gt_pose"][i, :, [4, 5, 6, 3]].T, -1)), 1.0, atol=1e-5
+        )
     assert load_map(tmp_path / "a" / "map_house_1.yaml").grid.shape[0] > 100
 
     # The accelerometer reads specific force: rotated to the world and averaged over the walk it
@@ -47,7 +49,9 @@ def test_fleet_run(robot, tmp_path):
     # The floor only pushes (normal force up, within the friction cone); feet in the air carry none.
     f = log["gt_force"]
     assert np.all(f[..., 2] >= -1e-3)
-    assert np.all(np.linalg.norm(f[..., :2], axis=-1) <= 1.8 * f[..., 2] + 1e-3)  # pyramid: each tangent axis <= mu (<= 1.2) * normal
+    assert np.all(
+        np.linalg.norm(f[..., :2], axis=-1) <= 1.8 * f[..., 2] + 1e-3
+    )  # pyramid: each tangent axis <= mu (<= 1.2) * normal
     assert np.all(f[..., 2][~log["gt_contact"]] <= GT_CONTACT_MIN_FORCE)  # gt_contact: load above 1 N
     one = robot_log(log, 0)
     assert one["q"].shape == (T, len(log["joint_names"]))

@@ -39,8 +39,14 @@ def test_matches_numpy_kalman_filter():
     h = 0.3 + 0.01 * rng.standard_normal(T)
     dz = 0.001 * rng.standard_normal(T)
     params = FloorParams(process_std=jnp.asarray(0.05), meas_std=jnp.asarray(0.02))
-    z = _run_jit(params, jnp.float32(0.31), jnp.asarray(dz, jnp.float32), jnp.full(T, dt, jnp.float32),
-                 jnp.asarray(h, jnp.float32), jnp.asarray(n, jnp.float32))  # fmt: skip
+    z = _run_jit(
+        params,
+        jnp.float32(0.31),
+        jnp.asarray(dz, jnp.float32),
+        jnp.full(T, dt, jnp.float32),
+        jnp.asarray(h, jnp.float32),
+        jnp.asarray(n, jnp.float32),
+    )
     ref = _numpy_kf(0.05, 0.02, 0.31, dz, np.full(T, dt), h, n)
     np.testing.assert_allclose(z, ref, atol=2e-5)
 
@@ -51,8 +57,14 @@ def test_velocity_bias_gives_the_closed_form_bounded_error():
     updates, plus the first step's b dt, taken into the floor height), instead of growing."""
     q, s, b, dt, T = 0.05, 0.02, -0.05, 0.004, 5000
     params = FloorParams(process_std=jnp.asarray(q), meas_std=jnp.asarray(s))
-    z = _run_jit(params, jnp.float32(0.3), jnp.full(T, b * dt, jnp.float32), jnp.full(T, dt, jnp.float32),
-                 jnp.full(T, 0.3, jnp.float32), jnp.full(T, 2.0, jnp.float32))  # fmt: skip
+    z = _run_jit(
+        params,
+        jnp.float32(0.3),
+        jnp.full(T, b * dt, jnp.float32),
+        jnp.full(T, dt, jnp.float32),
+        jnp.full(T, 0.3, jnp.float32),
+        jnp.full(T, 2.0, jnp.float32),
+    )
     Qd, R = q * q * dt, s * s / 2
     P = (Qd + np.sqrt(Qd * Qd + 4 * Qd * R)) / 2  # predicted variance at steady state
     K = P / (P + R)
@@ -62,8 +74,14 @@ def test_velocity_bias_gives_the_closed_form_bounded_error():
 
 def test_no_stance_integrates_and_nan_is_skipped():
     params = FloorParams.default()
-    z = _run_jit(params, jnp.float32(0.3), jnp.array([0.01, jnp.nan, 0.01]), jnp.full(3, 0.004),
-                 jnp.array([0.0, jnp.nan, 0.0]), jnp.zeros(3))  # fmt: skip
+    z = _run_jit(
+        params,
+        jnp.float32(0.3),
+        jnp.array([0.01, jnp.nan, 0.01]),
+        jnp.full(3, 0.004),
+        jnp.array([0.0, jnp.nan, 0.0]),
+        jnp.zeros(3),
+    )
     np.testing.assert_allclose(z, [0.31, 0.31, 0.32], atol=1e-6)
 
 
@@ -82,7 +100,5 @@ def test_stance_height_is_minus_mean_world_z_of_contact_points():
     ref = -np.sum(w * (p @ R.T)[:, 2]) / w.sum()
     np.testing.assert_allclose(h, ref, rtol=1e-5)
     assert float(n) == 2.5
-    h0, n0 = stance_height(
-        jnp.asarray(p, jnp.float32), jnp.asarray(R, jnp.float32), jnp.zeros(4)
-    )
+    h0, n0 = stance_height(jnp.asarray(p, jnp.float32), jnp.asarray(R, jnp.float32), jnp.zeros(4))
     assert float(h0) == 0.0 and float(n0) == 0.0

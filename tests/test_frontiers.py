@@ -4,6 +4,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from scipy import ndimage
+
 from jaxquad.kernels.frontiers import (
     FrontierParams,
     choose_frontier,
@@ -11,7 +13,6 @@ from jaxquad.kernels.frontiers import (
     label_clusters,
 )
 from jaxquad.kernels.planner import cost_to_go
-from scipy import ndimage
 
 FREE_THRESH = 19.6
 _mask = jax.jit(frontier_mask)

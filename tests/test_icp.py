@@ -9,10 +9,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from jaxquad.kernels import icp
-from jaxquad.kernels.raycast import Boxes, cast_depth, pinhole_rays
 from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
+
+from jaxquad.kernels import icp
+from jaxquad.kernels.raycast import Boxes, cast_depth, pinhole_rays
 
 H, W, LEVELS, ITERS = 30, 40, 2, (4, 6)
 K = np.array([[21.0, 0.0, 19.5], [0.0, 21.0, 14.5], [0.0, 0.0, 1.0]])  # ~87 deg horizontal FOV
@@ -29,16 +30,28 @@ def _boxes(spec) -> Boxes:
 
 
 # A room 6 x 5 m with two boxes and a slanted one: constrains all six degrees of freedom.
-ROOM = _boxes([[3.0, 0, 1, 0.1, 2.5, 1, 0], [0.5, 2.5, 1, 3, 0.1, 1, 0], [0.5, -2.5, 1, 3, 0.1, 1, 0],
-               [2.0, 0.8, 0.3, 0.3, 0.3, 0.3, 0.4], [1.8, -1.0, 0.5, 0.2, 0.4, 0.5, -0.3]])  # fmt: skip
+ROOM = _boxes(
+    [
+        [3.0, 0, 1, 0.1, 2.5, 1, 0],
+        [0.5, 2.5, 1, 3, 0.1, 1, 0],
+        [0.5, -2.5, 1, 3, 0.1, 1, 0],
+        [2.0, 0.8, 0.3, 0.3, 0.3, 0.3, 0.4],
+        [1.8, -1.0, 0.5, 0.2, 0.4, 0.5, -0.3],
+    ]
+)
 # A long corridor along x (walls at y = +-1, no end within range) without a floor: sliding along x is free.
 CORRIDOR = _boxes([[0.0, 1.1, 1, 50, 0.1, 1, 0], [0.0, -1.1, 1, 50, 0.1, 1, 0]])
 
 
 def _render(T_world_cam: np.ndarray, boxes: Boxes, floor_z: float) -> jnp.ndarray:
     rays = jnp.asarray(pinhole_rays(K, H, W))
-    d = cast_depth(jnp.asarray(T_world_cam[:3, 3], jnp.float32), jnp.asarray(T_world_cam[:3, :3], jnp.float32),
-                   rays, boxes, floor_z)  # fmt: skip
+    d = cast_depth(
+        jnp.asarray(T_world_cam[:3, 3], jnp.float32),
+        jnp.asarray(T_world_cam[:3, :3], jnp.float32),
+        rays,
+        boxes,
+        floor_z,
+    )
     return jnp.where(jnp.isfinite(d) & (d < 8.0), d, 0.0)
 
 
@@ -78,7 +91,8 @@ def test_recovers_known_motion_in_a_room():
     assert out.n_inliers > 0.6 * out.n_valid and out.rmse < 2e-3 and out.min_eig > 1e-3
     # Under vmap: the same result for a batch of two.
     batched = jax.vmap(_align_fn(), in_axes=(None, 0, None, None, None))(
-        ref, jnp.stack([cur, cur]), _f32(np.eye(4)), _f32(np.eye(4)), params)  # fmt: skip
+        ref, jnp.stack([cur, cur]), _f32(np.eye(4)), _f32(np.eye(4)), params
+    )
     np.testing.assert_allclose(np.asarray(batched.T_ref_cur[1]), np.asarray(out.T_ref_cur), atol=1e-5)
 
 
@@ -107,8 +121,13 @@ def test_degenerate_scenes_have_a_small_eigenvalue(scene):
     else:
         T, boxes, floor = T_WORLD_CAM0, CORRIDOR, -100.0
     ref = _render(T, boxes, floor)
-    good = _align_fn()(_render(T_WORLD_CAM0, ROOM, 0.0), _render(T_WORLD_CAM0, ROOM, 0.0), _f32(np.eye(4)),
-                       _f32(np.eye(4)), icp.IcpParams.default())  # fmt: skip
+    good = _align_fn()(
+        _render(T_WORLD_CAM0, ROOM, 0.0),
+        _render(T_WORLD_CAM0, ROOM, 0.0),
+        _f32(np.eye(4)),
+        _f32(np.eye(4)),
+        icp.IcpParams.default(),
+    )
     out = _align_fn()(ref, ref, _f32(np.eye(4)), _f32(np.eye(4)), icp.IcpParams.default())
     assert out.n_inliers > 100
     assert out.min_eig < 1e-4 * good.min_eig
@@ -209,8 +228,14 @@ def test_gauss_newton_step_equals_numpy_loop():
     cur_depth[rng.random((h, w)) < 0.1] = 0.0
     T = _pose(rng.normal(0, 0.02, 3), rng.normal(0, 0.03, 3))
     T_g = _pose(rng.normal(0, 0.02, 3), rng.normal(0, 0.03, 3))
-    p = {"max_dist": 0.3, "huber_k": 0.015, "rot_prior_weight": 50.0, "trans_prior_weight": 20.0, "damping": 1e-3,
-             "max_normal_jump": 2.0}  # fmt: skip
+    p = {
+        "max_dist": 0.3,
+        "huber_k": 0.015,
+        "rot_prior_weight": 50.0,
+        "trans_prior_weight": 20.0,
+        "damping": 1e-3,
+        "max_normal_jump": 2.0,
+    }
     expected = _gn_step_ref(T, T_g, cur_depth, ref_depth, Kl, p)
     with jax.enable_x64(True):
         params = icp.IcpParams(**{k: jnp.asarray(v, jnp.float64) for k, v in p.items()})

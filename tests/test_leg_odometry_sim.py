@@ -33,9 +33,7 @@ def _estimate(log, **variant):
     robot = load("go2")
     inputs, config = pipeline.inputs_from_log(robot, log, "truth")
     config = dataclasses.replace(config, **variant)
-    out = pipeline.estimate_fleet(
-        robot, config, pipeline.PipelineParams.default(), inputs
-    )
+    out = pipeline.estimate_fleet(robot, config, pipeline.PipelineParams.default(), inputs)
     return jax.tree.map(lambda a: np.asarray(a)[0], out)
 
 

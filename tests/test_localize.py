@@ -8,13 +8,13 @@ import dataclasses
 
 import numpy as np
 import pytest
+from test_particle_filter import GRID, RES, _cast
 
 from jaxquad.cli import main
 from jaxquad.io import OccupancyMap, save_map
 from jaxquad.kernels import AmclParams
 from jaxquad.localize import field_of_map, load_params, localize_log, localize_scans
 from jaxquad.localize.run import _scores
-from test_particle_filter import GRID, RES, _cast
 
 
 def test_default_file_matches_kernel_defaults():
@@ -33,10 +33,14 @@ def test_params_file_overrides_and_errors(tmp_path):
     assert lp.alpha1 == 0.05 and lp.max_particles == 500 and lp.alpha2 == 0.2
     assert load_params(p, max_particles=64).max_particles == 64
     for text, words in [
-        ("alpha9: 1\n", "unknown key"), ("sigma_hit: .nan\n", "sigma_hit"), ("max_particles: 2.5\n", "integer"),
-        ("recovery_alpha_fast: 2\n", "out of range"), ("laser_min_range: 9\n", "laser_min_range"),
-        ("[1, 2]\n", "mapping"), ("a: [\n", "not valid YAML"),
-    ]:  # fmt: skip
+        ("alpha9: 1\n", "unknown key"),
+        ("sigma_hit: .nan\n", "sigma_hit"),
+        ("max_particles: 2.5\n", "integer"),
+        ("recovery_alpha_fast: 2\n", "out of range"),
+        ("laser_min_range: 9\n", "laser_min_range"),
+        ("[1, 2]\n", "mapping"),
+        ("a: [\n", "not valid YAML"),
+    ]:
         p.write_text(text)
         with pytest.raises(ValueError, match=words):
             load_params(p)
@@ -50,10 +54,12 @@ def test_fleet_run_tracks_truth():
     field = field_of_map(OccupancyMap(GRID, RES, (0.0, 0.0, 0.0)), 2.0)
     bearings = np.linspace(-0.75 * np.pi, 0.75 * np.pi, 90)
     s = np.linspace(0.0, 1.0, 50)
-    truth = np.stack([
-        np.column_stack([1.0 + 3.5 * s, 1.0 + 0.6 * s, 0.2 + 0 * s]),
-        np.column_stack([5.0 - 2.0 * s, 1.2 + 1.0 * s**2, np.pi - 0.5 * s]),
-    ])  # fmt: skip
+    truth = np.stack(
+        [
+            np.column_stack([1.0 + 3.5 * s, 1.0 + 0.6 * s, 0.2 + 0 * s]),
+            np.column_stack([5.0 - 2.0 * s, 1.2 + 1.0 * s**2, np.pi - 0.5 * s]),
+        ]
+    )
     odom = np.concatenate([truth[..., :2] * 1.15, truth[..., 2:] * 1.1], -1)
     ranges = np.stack([[_cast(GRID, p, bearings, 8.0) for p in tr] for tr in truth])
     lp = load_params()
@@ -95,7 +101,7 @@ def test_errors_are_one_line(tmp_path, capsys):
         (["localize", log, "--map", str(tmp_path / "no.yaml"), "--out", out, "--global"], "map file not found"),
         (["localize", log, "--map", good_map, "--out", out, "--global"], "log"),
         (["localize", log, "--map", good_map, "--out", out, "--global", "--particles", "0"], "--particles"),
-    ]:  # fmt: skip
+    ]:
         assert main(argv) == 1
         last = capsys.readouterr().err.strip().splitlines()[-1]  # after any progress-bar lines
         assert last.startswith("jaxquad localize: error:") and words in last
@@ -118,11 +124,11 @@ def test_cli_end_to_end_on_a_log_with_depth(tmp_path):
 
     import jax.numpy as jnp
     import mujoco
+    from test_pipeline import fixed_feet_log as make_log
 
     from jaxquad.io import read_tum, save_log
     from jaxquad.kernels import Boxes, cast_depth, pinhole_rays
     from jaxquad.robots import load
-    from test_pipeline import fixed_feet_log as make_log
 
     log = dict(make_log.__wrapped__(load("go2")))
     # Room 6 m x 4 m around the origin, walls 0.2 m thick and 1 m high, and a block for asymmetry.
@@ -142,8 +148,9 @@ def test_cli_end_to_end_on_a_log_with_depth(tmp_path):
         R_world_cam = R.reshape(3, 3) @ T_base_camera[:3, :3]
         p_world_cam = log["gt_pose"][k, :3] + R.reshape(3, 3) @ T_base_camera[:3, 3]
         # The floor plane at z = 10 m lies above the camera, so no ray hits it: walls and block only.
-        d = np.asarray(cast_depth(jnp.asarray(p_world_cam, jnp.float32), jnp.asarray(R_world_cam, jnp.float32), rays,
-                                  boxes, 10.0))  # fmt: skip
+        d = np.asarray(
+            cast_depth(jnp.asarray(p_world_cam, jnp.float32), jnp.asarray(R_world_cam, jnp.float32), rays, boxes, 10.0)
+        )
         depth.append(np.where(np.isfinite(d), d, 0.0))
     log.update(depth=np.stack(depth).astype(np.float32), depth_t=log["t"][frames], K=K, T_base_camera=T_base_camera)
     log_path = save_log(tmp_path / "log.npz", log)
@@ -153,8 +160,19 @@ def test_cli_end_to_end_on_a_log_with_depth(tmp_path):
     occ.grid[inside] = 100
     save_map(tmp_path / "map.yaml", occ)
     out = tmp_path / "out"
-    argv = ["localize", str(log_path), "--map", str(tmp_path / "map.yaml"), "--out", str(out), "--initial-pose-gt",
-            "--contacts", "truth", "--particles", "300"]  # fmt: skip
+    argv = [
+        "localize",
+        str(log_path),
+        "--map",
+        str(tmp_path / "map.yaml"),
+        "--out",
+        str(out),
+        "--initial-pose-gt",
+        "--contacts",
+        "truth",
+        "--particles",
+        "300",
+    ]
     assert main(argv) == 0
     summary = json.loads((out / "summary.json").read_text())
     (robot,) = summary["robots"]

@@ -18,7 +18,7 @@ ROBOTS = ("go2", "badger")
 _step = jax.jit(gait_step)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _robot_gait(name):
     robot = load(name)
     return robot, Gait.for_robot(robot)
@@ -50,8 +50,14 @@ def _walk_c(name, style, command, seconds, iterations=None):
     force = np.zeros(6)
     for i in range(int(round(seconds / dt))):
         state, u = _step(
-            gait, params, state, jnp.asarray(data.qpos, jnp.float32), jnp.asarray(data.qvel, jnp.float32),
-            cmd, jnp.float32(i * dt), jnp.float32(dt),
+            gait,
+            params,
+            state,
+            jnp.asarray(data.qpos, jnp.float32),
+            jnp.asarray(data.qvel, jnp.float32),
+            cmd,
+            jnp.float32(i * dt),
+            jnp.float32(dt),
         )
         data.ctrl[:] = np.asarray(u)
         mujoco.mj_step(model, data)
@@ -67,7 +73,7 @@ def _walk_c(name, style, command, seconds, iterations=None):
     return dict(qpos=np.array(qpos), tau=np.array(tau), phase=np.array(phase), fz=np.array(fz), dt=dt)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _walk(name, style):
     speed = 0.5 if style == "calm" else 1.0
     return _walk_c(name, style, (speed, 0.0, 0.0), 10.0)
@@ -134,8 +140,9 @@ def test_walking_robot_follows_a_loop():
 
     xy, targets = [], []
     for i in range(int(20.0 / dt)):
-        u, state, rstate = control(state, rstate, jnp.asarray(data.qpos, jnp.float32),
-                                   jnp.asarray(data.qvel, jnp.float32), jnp.float32(i * dt))
+        u, state, rstate = control(
+            state, rstate, jnp.asarray(data.qpos, jnp.float32), jnp.asarray(data.qvel, jnp.float32), jnp.float32(i * dt)
+        )
         data.ctrl[:] = np.asarray(u)
         mujoco.mj_step(model, data)
         xy.append(data.qpos[:2].copy())
@@ -163,7 +170,7 @@ def test_contact_forces_average_body_weight(name):
     params = GaitParams.calm(gait)
     per_cycle = int(round(1.0 / (float(params.step_freq) * run["dt"])))
     cycles = 4
-    fz = run["fz"][-cycles * per_cycle:]
+    fz = run["fz"][-cycles * per_cycle :]
     np.testing.assert_allclose(fz.mean(), robot.mass * 9.81, rtol=0.05)
 
 
@@ -184,8 +191,9 @@ def test_params_vmap_and_bad_input_is_contained():
     assert not bool(new.ok[1]) and bool(new.ok[0])
     np.testing.assert_array_equal(np.asarray(tau[1]), 0.0)
     # The flag latches: a finite input afterwards still gives zero torque.
-    again, tau1 = _step(gait, p0, jax.tree.map(lambda x: x[1], new), qpos[0], qvel[0], cmd[0],
-                        jnp.float32(0.2), jnp.float32(0.004))
+    again, tau1 = _step(
+        gait, p0, jax.tree.map(lambda x: x[1], new), qpos[0], qvel[0], cmd[0], jnp.float32(0.2), jnp.float32(0.004)
+    )
     assert not bool(again.ok)
     np.testing.assert_array_equal(np.asarray(tau1), 0.0)
 

@@ -28,7 +28,10 @@ def _log(T: int = 50, nj: int = 12) -> dict[str, np.ndarray]:
 
 def _fleet(n: int = 3) -> dict[str, np.ndarray]:
     single = _log()
-    fleet = {k: (v if k in ("t", "robot", "joint_names", "depth_t", "K", "T_base_camera") else np.stack([v] * n)) for k, v in single.items()}
+    fleet = {
+        k: (v if k in ("t", "robot", "joint_names", "depth_t", "K", "T_base_camera") else np.stack([v] * n))
+        for k, v in single.items()
+    }
     fleet["fallen"] = np.array([False, True, False])
     fleet["valid"] = np.ones((n, 50), bool)
     return fleet

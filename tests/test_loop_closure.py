@@ -51,9 +51,16 @@ def _relative(a, b):
 
 # A 2 m wide corridor around a block, with a few features on its walls so that places differ.
 LOOP_WORLD = np.concatenate(
-    [box(-5, -4, 5, 4), box(-3, -2, 3, 2), box(-1.0, -4.0, -0.6, -3.6), box(1.5, -2.3, 2.3, -2.0),
-     box(4.6, 0.5, 5.0, 1.3), box(-5.0, -1.0, -4.7, -0.2), box(0.0, 3.7, 0.8, 4.0)]
-)  # fmt: skip
+    [
+        box(-5, -4, 5, 4),
+        box(-3, -2, 3, 2),
+        box(-1.0, -4.0, -0.6, -3.6),
+        box(1.5, -2.3, 2.3, -2.0),
+        box(4.6, 0.5, 5.0, 1.3),
+        box(-5.0, -1.0, -4.7, -0.2),
+        box(0.0, 3.7, 0.8, 4.0),
+    ]
+)
 
 
 def test_loop_found_with_true_relative_pose():

@@ -7,17 +7,27 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from evo.core import filters, geometry, lie_algebra, metrics as evo_metrics, sync, transformations
+from evo.core import filters, geometry, lie_algebra, sync, transformations
+from evo.core import metrics as evo_metrics
 from evo.core.trajectory import PoseTrajectory3D
 from evo.main_ape import ape as evo_ape
 from evo.main_rpe import rpe as evo_rpe
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from jaxquad.io.tum import TumTrajectory
 from jaxquad.metrics import (
-    associate, evaluate, evaluate_batch, pairs_by_frames, pairs_by_path, pairs_by_path_all,
-    rotation_angle, rotation_from_quat_xyzw, statistics, umeyama,
+    associate,
+    evaluate,
+    evaluate_batch,
+    pairs_by_frames,
+    pairs_by_path,
+    pairs_by_path_all,
+    rotation_angle,
+    rotation_from_quat_xyzw,
+    statistics,
+    umeyama,
 )
 
 STATS = ("rmse", "mean", "median", "std", "min", "max")
@@ -65,22 +75,24 @@ def _evo(tr):
 
 
 def _evo_kwargs(mode):
-    return dict(
-        align=mode in ("se3", "sim3"), correct_scale=mode in ("sim3", "scale"), align_origin=mode == "origin"
-    )
+    return dict(align=mode in ("se3", "sim3"), correct_scale=mode in ("sim3", "scale"), align_origin=mode == "origin")
 
 
 def _evo_all(ref, est, mode, deltas, unit, all_pairs=False, max_diff=0.01):
     r, e = sync.associate_trajectories(_evo(ref), _evo(est), max_diff=max_diff)
     out = {
-        key: evo_ape(copy.deepcopy(r), copy.deepcopy(e), rel, **_evo_kwargs(mode))
-        for key, rel in APE_RELATIONS.items()
+        key: evo_ape(copy.deepcopy(r), copy.deepcopy(e), rel, **_evo_kwargs(mode)) for key, rel in APE_RELATIONS.items()
     }
     evo_unit = evo_metrics.Unit.meters if unit == "m" else evo_metrics.Unit.frames
     for d in deltas:
         out[d] = evo_rpe(
-            copy.deepcopy(r), copy.deepcopy(e), evo_metrics.PoseRelation.translation_part,
-            delta=d, delta_unit=evo_unit, all_pairs=all_pairs, **_evo_kwargs(mode),
+            copy.deepcopy(r),
+            copy.deepcopy(e),
+            evo_metrics.PoseRelation.translation_part,
+            delta=d,
+            delta_unit=evo_unit,
+            all_pairs=all_pairs,
+            **_evo_kwargs(mode),
         )
     return out, len(r.timestamps)
 
@@ -106,9 +118,14 @@ def test_matches_evo_every_alignment(pair, mode):
     _assert_like_evo(evaluate(ref, est, align=mode, deltas=deltas).result, theirs, n, deltas, "m")
 
 
-@pytest.mark.parametrize(("unit", "all_pairs", "deltas"), [
-    ("frames", False, (1, 7, 50)), ("frames", True, (3, 40)), ("m", True, (2, 5)),
-])
+@pytest.mark.parametrize(
+    ("unit", "all_pairs", "deltas"),
+    [
+        ("frames", False, (1, 7, 50)),
+        ("frames", True, (3, 40)),
+        ("m", True, (2, 5)),
+    ],
+)
 def test_matches_evo_rpe_modes(pair, unit, all_pairs, deltas):
     ref, est = pair
     theirs, n = _evo_all(ref, est, "sim3", deltas, unit, all_pairs)
@@ -197,8 +214,9 @@ def test_statistics_match_numpy(seed, n, frac):
     with jax.enable_x64(True):
         s = statistics(jnp.asarray(x), jnp.asarray(mask))
     v = x[mask]
-    expect = dict(rmse=np.sqrt(np.mean(v**2)), mean=np.mean(v), median=np.median(v), std=np.std(v),
-                  min=np.min(v), max=np.max(v))
+    expect = dict(
+        rmse=np.sqrt(np.mean(v**2)), mean=np.mean(v), median=np.median(v), std=np.std(v), min=np.min(v), max=np.max(v)
+    )
     for k, e in expect.items():
         np.testing.assert_allclose(float(getattr(s, k)), e, rtol=1e-13, err_msg=k)
     assert int(s.n) == v.size
@@ -220,7 +238,8 @@ def test_rotations_match_evo_and_scipy():
         # Angles over (0, pi], including the ends where a naive acos/asin loses accuracy.
         rv = rng.normal(size=(50, 3))
         rv *= np.concatenate([[1e-9, 1e-4, np.pi, np.pi - 1e-7], rng.uniform(0, np.pi, 46)])[:, None] / np.linalg.norm(
-            rv, axis=1, keepdims=True)
+            rv, axis=1, keepdims=True
+        )
         angles = jax.vmap(rotation_angle)(jnp.asarray(Rotation.from_rotvec(rv).as_matrix()))
         np.testing.assert_allclose(np.asarray(angles), np.linalg.norm(rv, axis=1), rtol=1e-8, atol=1e-15)
     assert float(rotation_angle(jnp.eye(3))) == 0.0
@@ -264,10 +283,20 @@ def fleet():
     for k in range(4):
         ref = _path(500, 0.0, 0.02, 0.0, rng, turns=20 + 5 * k)
         refs.append(ref)
-        ests.append(_moved(_path(500, 0.0, 0.02, 0.01 * (k + 1), rng, turns=20 + 5 * k), [0, 0, 0.3 * k], [k, 0, 0], 1.0))
+        ests.append(
+            _moved(_path(500, 0.0, 0.02, 0.01 * (k + 1), rng, turns=20 + 5 * k), [0, 0, 0.3 * k], [k, 0, 0], 1.0)
+        )
     stack = lambda trs, f: np.stack([getattr(t, f) for t in trs]).astype(np.float32)
-    return refs, ests, [stack(refs, "p_world_body"), stack(refs, "q_world_body_xyzw"),
-                        stack(ests, "p_world_body"), stack(ests, "q_world_body_xyzw")]
+    return (
+        refs,
+        ests,
+        [
+            stack(refs, "p_world_body"),
+            stack(refs, "q_world_body_xyzw"),
+            stack(ests, "p_world_body"),
+            stack(ests, "q_world_body_xyzw"),
+        ],
+    )
 
 
 def test_batched_float32_matches_single_float64(fleet):
@@ -296,8 +325,9 @@ def test_batch_flags_bad_trajectories_without_nan(fleet):
     leaves = jax.tree.leaves(eqx.tree_at(lambda r: r.drift, batch, None))
     assert all(np.all(np.isfinite(np.asarray(x))) for x in leaves if np.asarray(x).dtype.kind == "f")
     # Drift alone is NaN, exactly where a path is shorter than the segment length (the 2.2 m line).
-    np.testing.assert_array_equal(np.isnan(np.asarray(batch.drift.trans_pct_per_length)),
-                                  np.asarray(batch.drift.n_segments_per_length) == 0)  # fmt: skip
+    np.testing.assert_array_equal(
+        np.isnan(np.asarray(batch.drift.trans_pct_per_length)), np.asarray(batch.drift.n_segments_per_length) == 0
+    )
     np.testing.assert_array_equal(np.asarray(batch.drift.n_segments_per_length)[3, 1:], 0)
     np.testing.assert_array_equal(np.asarray(batch.ok_align), [True, False, False, False])
     # A delta longer than every path: flagged per trajectory, zero statistics.

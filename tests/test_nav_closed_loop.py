@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy.sparse import csgraph
+from test_planner import _reference_graph
 
 from jaxquad import nav, robots
 from jaxquad.io.jsonfile import to_json
@@ -21,7 +22,6 @@ from jaxquad.kernels.planner import descend
 from jaxquad.nav import closed_loop as cl
 from jaxquad.nav import missions
 from jaxquad.sim.worlds import box_signed_distance, make_world, occupancy_map
-from test_planner import _reference_graph
 
 PARAMS = nav.NavParams.default(n_samples=64, horizon=10, n_path_points=64, path_stride=2)
 _descend = jax.jit(descend, static_argnames=("n_points", "stride"))
@@ -132,8 +132,9 @@ def run():
     its footprint across a wall."""
     from jaxquad.nav.fleet import NavConfig, navigate
 
-    cfg = NavConfig(n_robots=2, n_goals=2, particles=200, samples=96, horizon=16, style="calm", chunk_ticks=50,
-                    trace_robots=2)  # fmt: skip
+    cfg = NavConfig(
+        n_robots=2, n_goals=2, particles=200, samples=96, horizon=16, style="calm", chunk_ticks=50, trace_robots=2
+    )
     world = make_world("house", 0)
     wall = np.argmax(world.half[:4, 0])  # the first wall along x (y = 0)
     starts = np.array([[2.0, 2.0, 0.0], [3.0, float(world.center[wall, 1]) + 0.15, 0.0]])

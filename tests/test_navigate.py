@@ -6,10 +6,10 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxquad.kernels.costmap import INSCRIBED
 
 from jaxquad import nav
 from jaxquad.io.maps import OccupancyMap
+from jaxquad.kernels.costmap import INSCRIBED
 
 PARAMS = nav.NavParams.default(n_samples=256, horizon=30, n_path_points=64, path_stride=3, replan_ticks=10)
 

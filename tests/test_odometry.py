@@ -27,7 +27,9 @@ def test_constant_twist_is_a_helix(run):
     t = np.linspace(0.0, 5.0, 251)
     vx, vz, w = 0.8, 0.1, 0.9
     n = t.size
-    pose = run(IDENTITY, jnp.asarray(t), jnp.tile(jnp.array([vx, 0, vz]), (n, 1)), jnp.tile(jnp.array([0, 0, w]), (n, 1)))
+    pose = run(
+        IDENTITY, jnp.asarray(t), jnp.tile(jnp.array([vx, 0, vz]), (n, 1)), jnp.tile(jnp.array([0, 0, w]), (n, 1))
+    )
     p, q = helix(t, vx, vz, w)
     # The exponential map is exact for a constant twist, whatever the step.
     np.testing.assert_allclose(np.asarray(pose.p_world_base), p, atol=2e-5)
@@ -48,7 +50,9 @@ def test_general_screw_matches_matrix_exponential():
     T0[:3, 3] = [1.0, 2.0, -0.5]
     t = np.linspace(0.0, 3.0, 7)  # coarse steps: exactness does not depend on dt
     pose0 = odometry.Pose(p_world_base=jnp.asarray(T0[:3, 3]), q_world_base=q0)
-    pose = odometry.integrate_twist(pose0, jnp.asarray(t), jnp.tile(jnp.asarray(v), (7, 1)), jnp.tile(jnp.asarray(w), (7, 1)))
+    pose = odometry.integrate_twist(
+        pose0, jnp.asarray(t), jnp.tile(jnp.asarray(v), (7, 1)), jnp.tile(jnp.asarray(w), (7, 1))
+    )
     for k, tk in enumerate(t):
         T = T0 @ expm(xi * tk)
         np.testing.assert_allclose(np.asarray(pose.p_world_base[k]), T[:3, 3], atol=1e-5)

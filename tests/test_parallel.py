@@ -51,7 +51,7 @@ def _two_processes(*args, timeout: float) -> None:
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
-        )  # fmt: skip
+        )
         for i in range(2)
     ]
     try:
@@ -124,8 +124,23 @@ def test_initialize_needs_every_variable(monkeypatch):
 
 
 def test_cli_too_many_devices_is_a_one_line_error(tmp_path, capsys):
-    assert main(["simulate", "--robots", "2", "--seconds", "0.1", "--devices", "3", "--no-depth",
-                 "--out", str(tmp_path / "sim")]) == 1  # fmt: skip
+    assert (
+        main(
+            [
+                "simulate",
+                "--robots",
+                "2",
+                "--seconds",
+                "0.1",
+                "--devices",
+                "3",
+                "--no-depth",
+                "--out",
+                str(tmp_path / "sim"),
+            ]
+        )
+        == 1
+    )
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "--devices must lie in [1, 1]" in err
     assert not (tmp_path / "sim").exists()

@@ -11,9 +11,17 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxquad.kernels import (
-    AmclInputs, AmclParams, amcl_init, amcl_step, likelihood_field, measurement_update, omni_motion, pose_estimate,
-    scan_likelihood, systematic_resample,
-)  # fmt: skip
+    AmclInputs,
+    AmclParams,
+    amcl_init,
+    amcl_step,
+    likelihood_field,
+    measurement_update,
+    omni_motion,
+    pose_estimate,
+    scan_likelihood,
+    systematic_resample,
+)
 
 RES = 0.05
 
@@ -51,8 +59,18 @@ def test_likelihood_matches_numpy_loop():
     laser = np.array([0.2, -0.05, 0.1])
     z_hit, z_rand, sigma, rmin, rmax = 0.6, 0.4, 0.25, 0.2, 8.0
     f = jax.jit(scan_likelihood)
-    got = f(FIELD, jnp.asarray(poses, jnp.float32), jnp.asarray(laser, jnp.float32), jnp.asarray(ranges, jnp.float32),
-            jnp.asarray(bearings, jnp.float32), z_hit, z_rand, sigma, rmin, rmax)  # fmt: skip
+    got = f(
+        FIELD,
+        jnp.asarray(poses, jnp.float32),
+        jnp.asarray(laser, jnp.float32),
+        jnp.asarray(ranges, jnp.float32),
+        jnp.asarray(bearings, jnp.float32),
+        z_hit,
+        z_rand,
+        sigma,
+        rmin,
+        rmax,
+    )
     for i, (x, y, th) in enumerate(poses):
         p = 1.0
         for r, b in zip(ranges, bearings):
@@ -203,8 +221,12 @@ def _global_run():
     ranges = ranges + 0.01 * rng.normal(size=ranges.shape)
     keys = jax.random.split(jax.random.PRNGKey(5), len(truth) + 1)
     state = amcl_init(params, FIELD, None, keys[0], 2000)
-    inputs = AmclInputs(jnp.asarray(odom, jnp.float32), jnp.asarray(ranges, jnp.float32),
-                        jnp.tile(jnp.asarray(bearings, jnp.float32), (len(truth), 1)), keys[1:])  # fmt: skip
+    inputs = AmclInputs(
+        jnp.asarray(odom, jnp.float32),
+        jnp.asarray(ranges, jnp.float32),
+        jnp.tile(jnp.asarray(bearings, jnp.float32), (len(truth), 1)),
+        keys[1:],
+    )
     scan = jax.jit(lambda st, inp: jax.lax.scan(lambda c, x: amcl_step(params, FIELD, c, x), st, inp))
     _, out = scan(state, inputs)
     return truth, jax.tree.map(np.asarray, out)

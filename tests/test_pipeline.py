@@ -197,7 +197,9 @@ def test_cli_end_to_end_on_a_written_log(robot, fixed_feet_log, tmp_path):
     assert s["drift"]["endpoint_drift_3d_pct"] < 5.0
     traj = read_tum(tmp_path / "out" / "robot.tum")
     np.testing.assert_allclose(traj.p_world_body, fixed_feet_log["gt_pose"][:, :3], atol=3e-3)
-    assert main(["estimate", str(log_path), "--out", str(tmp_path / "o2"), "--params", str(tmp_path / "none.yaml")]) == 1
+    assert (
+        main(["estimate", str(log_path), "--out", str(tmp_path / "o2"), "--params", str(tmp_path / "none.yaml")]) == 1
+    )
     params.write_text("bandwith: 40\n")
     assert main(["estimate", str(log_path), "--out", str(tmp_path / "o3"), "--params", str(params)]) == 1
 
@@ -288,7 +290,10 @@ def test_gradient_through_soft_contacts(robot, standing_log):
     import equinox as eqx
     import jax
 
-    log = {k: (v[:40] if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == 150 else v) for k, v in standing_log.items()}
+    log = {
+        k: (v[:40] if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == 150 else v)
+        for k, v in standing_log.items()
+    }
     inputs, config = pipeline.inputs_from_log(robot, log, "observer")
     config = dataclasses.replace(config, soft_contacts=True)
     one = jax.tree.map(lambda a: a[0], inputs)

@@ -6,10 +6,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from jaxquad.kernels.costmap import INSCRIBED, LETHAL, UNKNOWN
-from jaxquad.kernels.planner import cost_to_go, descend, nearest_open_cell, step_weights
 from scipy import sparse
 from scipy.sparse import csgraph
+
+from jaxquad.kernels.costmap import INSCRIBED, LETHAL, UNKNOWN
+from jaxquad.kernels.planner import cost_to_go, descend, nearest_open_cell, step_weights
 
 _ctg = jax.jit(cost_to_go)
 _descend = jax.jit(descend, static_argnames=("n_points", "stride"))

@@ -40,7 +40,9 @@ def _look_at(yaw: float, pitch: float, roll: float) -> np.ndarray:
     return Rz @ Ry @ Rx @ R_level
 
 
-@pytest.mark.parametrize("pose", [((0.0, 0.0, 0.3), 0.3, 0.1, 0.0), ((1.0, -2.0, 0.5), 2.0, 0.4, 0.2), ((-3.0, 3.0, 0.25), -1.2, -0.1, -0.3)])
+@pytest.mark.parametrize(
+    "pose", [((0.0, 0.0, 0.3), 0.3, 0.1, 0.0), ((1.0, -2.0, 0.5), 2.0, 0.4, 0.2), ((-3.0, 3.0, 0.25), -1.2, -0.1, -0.3)]
+)
 def test_matches_mj_ray(pose):
     p, yaw, pitch, roll = pose
     R = _look_at(yaw, pitch, roll)
@@ -65,14 +67,22 @@ def test_wall_depth_closed_form():
     # and the slant range of pixel (u, v) is 3 * |ray|.
     wall = Boxes(jnp.array([[3.5, 0.0, 1.0]]), jnp.array([[0.5, 50.0, 50.0]]), jnp.zeros(1))
     rays = pinhole_rays(_K, 48, 64)
-    depth = np.asarray(_cast(jnp.array([0.0, 0.0, 1.0]), jnp.asarray(_look_at(0, 0, 0), jnp.float32), jnp.asarray(rays), wall, -100.0))
+    depth = np.asarray(
+        _cast(jnp.array([0.0, 0.0, 1.0]), jnp.asarray(_look_at(0, 0, 0), jnp.float32), jnp.asarray(rays), wall, -100.0)
+    )
     np.testing.assert_allclose(depth, 3.0, rtol=1e-6)
     # Same wall rotated 30 deg about z through the optical axis point (3, 0): the depth of pixel
     # column u follows the line x cos(a) + y sin(a) = 3 cos(a), i.e. z = 3 / (1 - tan(a) * xr),
     # where xr is the ray's optical x (= -y_world per unit depth).
     a = np.deg2rad(30.0)
-    tilted = Boxes(jnp.array([[3.0 + 0.5 * np.cos(a), 0.5 * np.sin(a), 1.0]]), jnp.array([[0.5, 50.0, 50.0]]), jnp.array([a]))
-    depth = np.asarray(_cast(jnp.array([0.0, 0.0, 1.0]), jnp.asarray(_look_at(0, 0, 0), jnp.float32), jnp.asarray(rays), tilted, -100.0))
+    tilted = Boxes(
+        jnp.array([[3.0 + 0.5 * np.cos(a), 0.5 * np.sin(a), 1.0]]), jnp.array([[0.5, 50.0, 50.0]]), jnp.array([a])
+    )
+    depth = np.asarray(
+        _cast(
+            jnp.array([0.0, 0.0, 1.0]), jnp.asarray(_look_at(0, 0, 0), jnp.float32), jnp.asarray(rays), tilted, -100.0
+        )
+    )
     xr = rays[..., 0]
     np.testing.assert_allclose(depth, 3.0 / (1.0 - np.tan(a) * xr), rtol=1e-5)
 

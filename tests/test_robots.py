@@ -29,7 +29,7 @@ def _tiny_mjcf(free: bool = True, foot_sites: bool = False) -> str:
       </body>""")
     joint = "<freejoint/>" if free else ""
     return f"""<mujoco><worldbody><body name="base" pos="0 0 0.4">{joint}
-      <geom type="box" size="0.25 0.1 0.05" mass="5" contype="0" conaffinity="0"/>{''.join(legs)}
+      <geom type="box" size="0.25 0.1 0.05" mass="5" contype="0" conaffinity="0"/>{"".join(legs)}
     </body></worldbody></mujoco>"""
 
 
@@ -37,16 +37,25 @@ def _tiny_urdf() -> str:
     inertia = '<inertia ixx="1e-3" iyy="1e-3" izz="1e-3" ixy="0" ixz="0" iyz="0"/>'
     parts = [f'<link name="base"><inertial><mass value="5"/>{inertia}</inertial></link>']
     for leg, x, y in [("FL", 0.2, 0.05), ("FR", 0.2, -0.05), ("RL", -0.2, 0.05), ("RR", -0.2, -0.05)]:
-        chain = [("base", f"{leg}_hip", f"{x} {y} 0", "1 0 0"), (f"{leg}_hip", f"{leg}_thigh", f"0 {y} 0", "0 1 0"),
-                 (f"{leg}_thigh", f"{leg}_calf", "0 0 -0.2", "0 1 0")]
+        chain = [
+            ("base", f"{leg}_hip", f"{x} {y} 0", "1 0 0"),
+            (f"{leg}_hip", f"{leg}_thigh", f"0 {y} 0", "0 1 0"),
+            (f"{leg}_thigh", f"{leg}_calf", "0 0 -0.2", "0 1 0"),
+        ]
         for parent, child, xyz, axis in chain:
             parts.append(f'<link name="{child}"><inertial><mass value="0.5"/>{inertia}</inertial></link>')
-            parts.append(f'<joint name="{child}_joint" type="revolute"><parent link="{parent}"/><child link="{child}"/>'
-                         f'<origin xyz="{xyz}"/><axis xyz="{axis}"/>'
-                         f'<limit lower="-2" upper="2" effort="20" velocity="30"/></joint>')
-        parts.append(f'<link name="{leg}_foot"><collision><geometry><sphere radius="0.02"/></geometry></collision></link>')
-        parts.append(f'<joint name="{leg}_foot_fixed" type="fixed"><parent link="{leg}_calf"/><child link="{leg}_foot"/>'
-                     '<origin xyz="0 0 -0.2"/></joint>')
+            parts.append(
+                f'<joint name="{child}_joint" type="revolute"><parent link="{parent}"/><child link="{child}"/>'
+                f'<origin xyz="{xyz}"/><axis xyz="{axis}"/>'
+                f'<limit lower="-2" upper="2" effort="20" velocity="30"/></joint>'
+            )
+        parts.append(
+            f'<link name="{leg}_foot"><collision><geometry><sphere radius="0.02"/></geometry></collision></link>'
+        )
+        parts.append(
+            f'<joint name="{leg}_foot_fixed" type="fixed"><parent link="{leg}_calf"/><child link="{leg}_foot"/>'
+            '<origin xyz="0 0 -0.2"/></joint>'
+        )
     return f'<robot name="tiny">{"".join(parts)}</robot>'
 
 

@@ -26,9 +26,7 @@ def _irls_reference(p, v, omega_imu, w, w_imu, scale, n_iter, loss):
     u = np.ones(len(p))
     for it in range(n_iter + 1):
         wf = w * u
-        rows = [
-            np.sqrt(wi) * np.hstack([np.eye(3), -_skew(pi)]) for pi, wi in zip(p, wf)
-        ]
+        rows = [np.sqrt(wi) * np.hstack([np.eye(3), -_skew(pi)]) for pi, wi in zip(p, wf)]
         rhs = [np.sqrt(wi) * -vi for vi, wi in zip(v, wf)]
         rows.append(np.sqrt(w_imu) * np.hstack([np.zeros((3, 3)), np.eye(3)]))
         rhs.append(np.sqrt(w_imu) * omega_imu)
@@ -49,19 +47,13 @@ def _scene(rng, slip_foot, slip_speed=0.6, noise=0.02):
     v = -v_base - np.cross(omega, p) + noise * rng.standard_normal((4, 3))
     if slip_foot is not None:
         d = rng.standard_normal(3)
-        v[slip_foot] += (
-            slip_speed * d / np.linalg.norm(d)
-        )  # the foot slides in the world
+        v[slip_foot] += slip_speed * d / np.linalg.norm(d)  # the foot slides in the world
     return p, v, omega, v_base
 
 
 _F = {
     loss: jax.jit(
-        jax.vmap(
-            lambda p, v, o, w, s, loss=loss: robust_body_twist(
-                p, v, o, w, 1.0, 1.5, s, n_iter=4, loss=loss
-            )
-        )
+        jax.vmap(lambda p, v, o, w, s, loss=loss: robust_body_twist(p, v, o, w, 1.0, 1.5, s, n_iter=4, loss=loss))
     )
     for loss in ("huber", "cauchy")
 }
@@ -78,9 +70,7 @@ def test_matches_numpy_irls_and_flags_the_slipping_foot(loss):
     f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
     out = _F[loss](f32(p), f32(v), f32(omega), f32(w), f32(scale))
     for i in range(16):
-        v_ref, omega_ref, u_ref = _irls_reference(
-            p[i], v[i], omega[i], w[i], 1.0, 0.1, 4, loss
-        )
+        v_ref, omega_ref, u_ref = _irls_reference(p[i], v[i], omega[i], w[i], 1.0, 0.1, 4, loss)
         np.testing.assert_allclose(out.twist.v_base[i], v_ref, atol=2e-4)
         np.testing.assert_allclose(out.twist.omega_base[i], omega_ref, atol=2e-4)
         np.testing.assert_allclose(out.robust_weight[i], u_ref, rtol=2e-3, atol=1e-5)
@@ -107,11 +97,7 @@ def test_swing_feet_and_nan_are_ignored_and_stance_count_kept():
 
 def test_robust_weight_closed_forms():
     r = jnp.array([0.0, 0.05, 0.1, 0.2, 1.0])
-    np.testing.assert_allclose(
-        robust_weight(r, 0.1, "huber"), [1, 1, 1, 0.5, 0.1], rtol=1e-6
-    )
-    np.testing.assert_allclose(
-        robust_weight(r, 0.1, "cauchy"), 1 / (1 + (np.asarray(r) / 0.1) ** 2), rtol=1e-6
-    )
+    np.testing.assert_allclose(robust_weight(r, 0.1, "huber"), [1, 1, 1, 0.5, 0.1], rtol=1e-6)
+    np.testing.assert_allclose(robust_weight(r, 0.1, "cauchy"), 1 / (1 + (np.asarray(r) / 0.1) ** 2), rtol=1e-6)
     with pytest.raises(ValueError, match="loss"):
         robust_weight(r, 0.1, "tukey")

@@ -32,18 +32,26 @@ def _truth(seed: int = 0) -> dict:
     depth = rng.integers(300, 5000, (4, H, W)).astype(np.uint16)
     depth[:, 0, :3] = 0  # invalid pixels
     return {
-        "t": t, "gyro": rng.normal(0, 0.5, (N, 3)), "acc": rng.normal(0, 0.3, (N, 3)) + [0, 0, 9.81],
-        "quat_wxyz": quat, "q": rng.uniform(-1, 1, (N, 12)), "qd": rng.normal(0, 2, (N, 12)),
-        "tau": rng.normal(0, 5, (N, 12)), "foot_force": rng.uniform(0, 60, (N, 4)),
+        "t": t,
+        "gyro": rng.normal(0, 0.5, (N, 3)),
+        "acc": rng.normal(0, 0.3, (N, 3)) + [0, 0, 9.81],
+        "quat_wxyz": quat,
+        "q": rng.uniform(-1, 1, (N, 12)),
+        "qd": rng.normal(0, 2, (N, 12)),
+        "tau": rng.normal(0, 5, (N, 12)),
+        "foot_force": rng.uniform(0, 60, (N, 4)),
         "gt_pose": np.concatenate([rng.normal(0, 1, (N, 3)), gt_q], axis=1),
-        "depth_mm": depth, "depth_t": T0_NS + np.array([20, 130, 250, 400]) * 1_000_000,
+        "depth_mm": depth,
+        "depth_t": T0_NS + np.array([20, 130, 250, 400]) * 1_000_000,
         "K": np.array([[7.0, 0, 3.9], [0, 7.5, 2.8], [0, 0, 1]]),
-    }  # fmt: skip
+    }
 
 
 # base_link -> camera_link -> camera_optical (a mount, then the optical axes).
-TF = [("base_link", "camera_link", [0.3, 0.0, 0.1], Rotation.from_euler("y", 0.2)),
-      ("camera_link", "camera_optical", [0.0, 0.02, 0.0], Rotation.from_euler("zx", [-np.pi / 2, -np.pi / 2]))]  # fmt: skip
+TF = [
+    ("base_link", "camera_link", [0.3, 0.0, 0.1], Rotation.from_euler("y", 0.2)),
+    ("camera_link", "camera_optical", [0.0, 0.02, 0.0], Rotation.from_euler("zx", [-np.pi / 2, -np.pi / 2])),
+]
 
 
 def _tf_matrix() -> np.ndarray:
@@ -65,24 +73,39 @@ def _write_generic(path: Path, fmt: str, d: dict, rename=None, drop=slice(0, 0),
         for i in range(N):
             h = m.header(ns[i], "imu")
             imu = ty["sensor_msgs/msg/Imu"](
-                header=h, orientation=m.quaternion(d["quat_wxyz"][i]), orientation_covariance=np.zeros(9),
-                angular_velocity=m.vector3(d["gyro"][i]), angular_velocity_covariance=np.zeros(9),
-                linear_acceleration=m.vector3(d["acc"][i]), linear_acceleration_covariance=np.zeros(9))  # fmt: skip
+                header=h,
+                orientation=m.quaternion(d["quat_wxyz"][i]),
+                orientation_covariance=np.zeros(9),
+                angular_velocity=m.vector3(d["gyro"][i]),
+                angular_velocity_covariance=np.zeros(9),
+                linear_acceleration=m.vector3(d["acc"][i]),
+                linear_acceleration_covariance=np.zeros(9),
+            )
             w.write("/imu/data", "sensor_msgs/msg/Imu", ns[i], imu)
             if not (drop.start <= i < drop.stop):
-                js = ty["sensor_msgs/msg/JointState"](header=m.header(ns[i], ""), name=names,
-                                                      position=d["q"][i, perm], velocity=d["qd"][i, perm],
-                                                      effort=d["tau"][i, perm])  # fmt: skip
+                js = ty["sensor_msgs/msg/JointState"](
+                    header=m.header(ns[i], ""),
+                    name=names,
+                    position=d["q"][i, perm],
+                    velocity=d["qd"][i, perm],
+                    effort=d["tau"][i, perm],
+                )
                 w.write("/joint_states", "sensor_msgs/msg/JointState", ns[i], js)
             layout = ty["std_msgs/msg/MultiArrayLayout"](dim=[], data_offset=0)
             ff = ty["std_msgs/msg/Float32MultiArray"](layout=layout, data=d["foot_force"][i].astype(np.float32))
             w.write("/foot_force", "std_msgs/msg/Float32MultiArray", ns[i], ff)
             cov = np.zeros(36)
             odom = ty["nav_msgs/msg/Odometry"](
-                header=m.header(ns[i], "world"), child_frame_id="base_link",
-                pose=ty["geometry_msgs/msg/PoseWithCovariance"](pose=m.pose(d["gt_pose"][i, :3], d["gt_pose"][i, 3:]), covariance=cov),
-                twist=ty["geometry_msgs/msg/TwistWithCovariance"](twist=ty["geometry_msgs/msg/Twist"](
-                    linear=m.vector3([0, 0, 0]), angular=m.vector3([0, 0, 0])), covariance=cov))  # fmt: skip
+                header=m.header(ns[i], "world"),
+                child_frame_id="base_link",
+                pose=ty["geometry_msgs/msg/PoseWithCovariance"](
+                    pose=m.pose(d["gt_pose"][i, :3], d["gt_pose"][i, 3:]), covariance=cov
+                ),
+                twist=ty["geometry_msgs/msg/TwistWithCovariance"](
+                    twist=ty["geometry_msgs/msg/Twist"](linear=m.vector3([0, 0, 0]), angular=m.vector3([0, 0, 0])),
+                    covariance=cov,
+                ),
+            )
             w.write("/odom/ground_truth", "nav_msgs/msg/Odometry", ns[i], odom)
         tfs = [m.transform(ns[0], a, b, p, r.as_quat()[[3, 0, 1, 2]]) for a, b, p, r in TF]
         w.write("/tf_static", "tf2_msgs/msg/TFMessage", ns[0], ty["tf2_msgs/msg/TFMessage"](transforms=tfs))
@@ -93,8 +116,15 @@ def _write_generic(path: Path, fmt: str, d: dict, rename=None, drop=slice(0, 0),
             else:
                 img = d["depth_mm"][k]
             data = np.frombuffer(img.tobytes(), np.uint8)
-            msg = ty["sensor_msgs/msg/Image"](header=m.header(t_img, "camera_optical"), height=H, width=W,
-                                              encoding=encoding, is_bigendian=0, step=W * img.itemsize, data=data)  # fmt: skip
+            msg = ty["sensor_msgs/msg/Image"](
+                header=m.header(t_img, "camera_optical"),
+                height=H,
+                width=W,
+                encoding=encoding,
+                is_bigendian=0,
+                step=W * img.itemsize,
+                data=data,
+            )
             w.write("/camera/depth/image_raw", "sensor_msgs/msg/Image", t_img, msg)
             w.write("/camera/depth/camera_info", "sensor_msgs/msg/CameraInfo", t_img, _camera_info(m, t_img, d["K"]))
 
@@ -103,11 +133,23 @@ def _camera_info(m: Messages, t_ns: int, K: np.ndarray):
     ty = m.types
     fields = dict(m.store.fielddefs["sensor_msgs/msg/CameraInfo"][1])
     big = "K" in fields  # ROS 1 names the matrices in capitals
-    mats = {("D" if big else "d"): np.zeros(5), ("K" if big else "k"): K.ravel(), ("R" if big else "r"): np.eye(3).ravel(),
-            ("P" if big else "p"): np.zeros(12)}  # fmt: skip
+    mats = {
+        ("D" if big else "d"): np.zeros(5),
+        ("K" if big else "k"): K.ravel(),
+        ("R" if big else "r"): np.eye(3).ravel(),
+        ("P" if big else "p"): np.zeros(12),
+    }
     roi = ty["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
-    return ty["sensor_msgs/msg/CameraInfo"](header=m.header(t_ns, "camera_optical"), height=H, width=W,
-                                            distortion_model="plumb_bob", **mats, binning_x=0, binning_y=0, roi=roi)  # fmt: skip
+    return ty["sensor_msgs/msg/CameraInfo"](
+        header=m.header(t_ns, "camera_optical"),
+        height=H,
+        width=W,
+        distortion_model="plumb_bob",
+        **mats,
+        binning_x=0,
+        binning_y=0,
+        roi=roi,
+    )
 
 
 def _topics(tmp: Path, edit=None, base: str = "generic.yaml") -> Path:
@@ -155,16 +197,25 @@ def _write_lowstate(path: Path, fmt: str, d: dict, types: dict) -> None:
     with bag_writer(path, fmt, types) as w:
         ty = w.msgs.types
         for i, t in enumerate(d["t"]):
-            motors = [ty["example_quad/msg/MotorState"](mode=1, q=d["q"][i, k], dq=d["qd"][i, k], ddq=0.0, tau_est=d["tau"][i, k])
-                      for k in motor_order] + [ty["example_quad/msg/MotorState"](mode=0, q=0.0, dq=0.0, ddq=0.0, tau_est=0.0)] * 8  # fmt: skip
+            motors = [
+                ty["example_quad/msg/MotorState"](
+                    mode=1, q=d["q"][i, k], dq=d["qd"][i, k], ddq=0.0, tau_est=d["tau"][i, k]
+                )
+                for k in motor_order
+            ] + [ty["example_quad/msg/MotorState"](mode=0, q=0.0, dq=0.0, ddq=0.0, tau_est=0.0)] * 8
             imu = ty["example_quad/msg/IMUState"](
-                quaternion=d["quat_wxyz"][i].astype(np.float32), gyroscope=d["gyro"][i].astype(np.float32),
-                accelerometer=d["acc"][i].astype(np.float32), rpy=np.zeros(3, np.float32), temperature=30)  # fmt: skip
+                quaternion=d["quat_wxyz"][i].astype(np.float32),
+                gyroscope=d["gyro"][i].astype(np.float32),
+                accelerometer=d["acc"][i].astype(np.float32),
+                rpy=np.zeros(3, np.float32),
+                temperature=30,
+            )
             feet = np.round(d["foot_force"][i][[1, 0, 3, 2]]).astype(np.int16)  # FR FL RR RL
             msg = ty["example_quad/msg/LowState"](imu_state=imu, motor_state=motors, foot_force=feet, tick=i)
             w.write("/lowstate", "example_quad/msg/LowState", t, msg)
-            mocap = ty["geometry_msgs/msg/PoseStamped"](header=w.msgs.header(t, "world"),
-                                                        pose=w.msgs.pose(d["gt_pose"][i, :3], d["gt_pose"][i, 3:]))  # fmt: skip
+            mocap = ty["geometry_msgs/msg/PoseStamped"](
+                header=w.msgs.header(t, "world"), pose=w.msgs.pose(d["gt_pose"][i, :3], d["gt_pose"][i, 3:])
+            )
             w.write("/mocap/pose", "geometry_msgs/msg/PoseStamped", t, mocap)
 
 
@@ -174,8 +225,10 @@ def _lowstate_topics(raw: dict) -> None:
 
 
 def _vendor_types() -> dict:
-    return {f"example_quad/msg/{n}": (EXAMPLES / "msg/example_quad/msg" / f"{n}.msg").read_text()
-            for n in ("LowState", "MotorState", "IMUState")}  # fmt: skip
+    return {
+        f"example_quad/msg/{n}": (EXAMPLES / "msg/example_quad/msg" / f"{n}.msg").read_text()
+        for n in ("LowState", "MotorState", "IMUState")
+    }
 
 
 def _strip_definitions(bag: Path) -> None:
@@ -304,10 +357,16 @@ def test_error_no_imu_and_malformed_topics_files(tmp_path, generic_bag):
     _raises(generic_bag, _topics(tmp_path, lambda r: r.update(imus={})), r"unknown key 'imus'")
     _raises(generic_bag, _topics(tmp_path, lambda r: r.update(clock="camera")), r"clock: 'camera' is not one of")
     _raises(generic_bag, _topics(tmp_path, lambda r: r["imu"].update(gyro="angular_velocity.w")), r"field 'w' of")
-    _raises(generic_bag, _topics(tmp_path, lambda r: r["imu"].update(type="sensor_msgs/msg/Temperature")),
-            r"carries sensor_msgs/msg/Imu, the topics file says")  # fmt: skip
-    _raises(generic_bag, _topics(tmp_path, lambda r: r["T_base_camera"].update(base_frame="trunk")),
-            r"no transform chain from 'trunk' to 'camera_optical'")  # fmt: skip
+    _raises(
+        generic_bag,
+        _topics(tmp_path, lambda r: r["imu"].update(type="sensor_msgs/msg/Temperature")),
+        r"carries sensor_msgs/msg/Imu, the topics file says",
+    )
+    _raises(
+        generic_bag,
+        _topics(tmp_path, lambda r: r["T_base_camera"].update(base_frame="trunk")),
+        r"no transform chain from 'trunk' to 'camera_optical'",
+    )
     (tmp_path / "msg" / "a" / "msg").mkdir(parents=True)
     (tmp_path / "msg" / "a" / "msg" / "B.msg").write_text("float32 [ x y\n")
     _raises(generic_bag, _topics(tmp_path, lambda r: r.update(types=["msg/a/msg/B.msg"])), r"a/msg/B: cannot be parsed")
@@ -325,12 +384,18 @@ def test_error_no_imu_and_malformed_topics_files(tmp_path, generic_bag):
 def _npz_log(d: dict) -> dict:
     """The .npz log equivalent to what `_write_generic` records."""
     t = (d["t"] - T0_NS) * 1e-9
-    return {"t": t, "robot": np.asarray("go2"), "joint_names": np.asarray(JOINTS),
-            **{k: d[k] for k in ("q", "qd", "tau", "gyro", "acc", "quat_wxyz", "gt_pose")},
-            "foot_force": d["foot_force"].astype(np.float32).astype(np.float64),
-            "contact": (d["foot_force"].astype(np.float32) > 30.0).astype(float),
-            "depth": d["depth_mm"] / 1000.0, "depth_t": (d["depth_t"] - T0_NS) * 1e-9, "K": d["K"],
-            "T_base_camera": _tf_matrix()}  # fmt: skip
+    return {
+        "t": t,
+        "robot": np.asarray("go2"),
+        "joint_names": np.asarray(JOINTS),
+        **{k: d[k] for k in ("q", "qd", "tau", "gyro", "acc", "quat_wxyz", "gt_pose")},
+        "foot_force": d["foot_force"].astype(np.float32).astype(np.float64),
+        "contact": (d["foot_force"].astype(np.float32) > 30.0).astype(float),
+        "depth": d["depth_mm"] / 1000.0,
+        "depth_t": (d["depth_t"] - T0_NS) * 1e-9,
+        "K": d["K"],
+        "T_base_camera": _tf_matrix(),
+    }
 
 
 @pytest.fixture(scope="module")
@@ -393,13 +458,24 @@ def results(tmp_path_factory) -> Path:
     for name in ("robot", "gt_0000"):
         q = Rotation.random(50, random_state=11).as_quat()
         write_tum(folder / f"{name}.tum", TumTrajectory(t, rng.normal(size=(50, 3)), q))
-    np.savez(folder / "robot.npz", t=t, v_base=rng.normal(size=(50, 3)).astype(np.float32),
-             omega_base=rng.normal(size=(50, 3)).astype(np.float32))  # fmt: skip
+    np.savez(
+        folder / "robot.npz",
+        t=t,
+        v_base=rng.normal(size=(50, 3)).astype(np.float32),
+        omega_base=rng.normal(size=(50, 3)).astype(np.float32),
+    )
     ranges = rng.uniform(0.3, 6.0, (2, 4, W))
     ranges[:, 1, :5] = np.inf
     bearings = np.arctan2(-(np.arange(W) - 7.3), 9.0)
-    np.savez(folder / "robot_scans.npz", depth_t=t[[3, 15, 30, 44]], ranges_stabilized=ranges[0], ranges_baseline=ranges[1],
-             bearings=bearings, roll=rng.normal(0, 0.1, 4), pitch=rng.normal(0, 0.1, 4))  # fmt: skip
+    np.savez(
+        folder / "robot_scans.npz",
+        depth_t=t[[3, 15, 30, 44]],
+        ranges_stabilized=ranges[0],
+        ranges_baseline=ranges[1],
+        bearings=bearings,
+        roll=rng.normal(0, 0.1, 4),
+        pitch=rng.normal(0, 0.1, 4),
+    )
     grid = rng.choice(np.array([-1, 0, 100], np.int8), (5, 7))
     save_map(folder / "map.yaml", OccupancyMap(grid, 0.05, (-1.0, 2.0, 0.0)))
     return folder
@@ -421,8 +497,9 @@ def test_export_reads_back_to_the_same_numbers(results, tmp_path, fmt):
         assert [t for t, _ in odom] == list(np.round(traj.t_s * 1e9).astype(np.int64))
         pose = [m.pose.pose for _, m in odom]
         np.testing.assert_array_equal([[p.position.x, p.position.y, p.position.z] for p in pose], traj.p_world_body)
-        np.testing.assert_array_equal([[p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w] for p in pose],
-                                      traj.q_world_body_xyzw)  # fmt: skip
+        np.testing.assert_array_equal(
+            [[p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w] for p in pose], traj.q_world_body_xyzw
+        )
         v = np.array([[m.twist.twist.linear.x, m.twist.twist.linear.y, m.twist.twist.linear.z] for _, m in odom])
         np.testing.assert_array_equal(v, est["v_base"].astype(np.float64) if name == "robot" else 0 * v)
         assert {m.header.frame_id for _, m in odom} == {"odom"} and odom[0][1].child_frame_id == f"{name}/base_link"

@@ -126,7 +126,9 @@ def _angles_off_half_pixel(rng, width, cx, fy, scale):
             return float(roll), float(pitch)
 
 
-@pytest.mark.parametrize("seed,height,width,band,scale", [(0, 48, 64, 5, 0.3), (1, 60, 80, 12, 0.6), (2, 480, 640, 30, 0.25)])
+@pytest.mark.parametrize(
+    "seed,height,width,band,scale", [(0, 48, 64, 5, 0.3), (1, 60, 80, 12, 0.6), (2, 480, 640, 30, 0.25)]
+)
 def test_stabilized_matches_reference_loop_pixel_for_pixel(seed, height, width, band, scale):
     rng = np.random.default_rng(seed)
     depth = rng.uniform(0.0, 10.0, (height, width)).astype(np.float32)
@@ -212,7 +214,9 @@ def test_vmap_over_images_matches_single_calls_and_grad_is_finite():
     depth = jnp.asarray(rng.uniform(0.1, 9.0, (3, 60, 80)), jnp.float32).at[:, 20:40, 10:20].set(jnp.nan)
     roll, pitch = jnp.array([0.05, -0.1, 0.0]), jnp.array([-0.08, 0.04, 0.12])
     for kernel in (stabilized_scan, level_scan):
-        batch = jax.jit(jax.vmap(kernel, in_axes=(0, None, 0, 0, None)), static_argnums=4)(depth, small_K, roll, pitch, 6)
+        batch = jax.jit(jax.vmap(kernel, in_axes=(0, None, 0, 0, None)), static_argnums=4)(
+            depth, small_K, roll, pitch, 6
+        )
         single = jax.jit(kernel, static_argnums=4)
         for i in range(3):
             one = single(depth[i], small_K, roll[i], pitch[i], 6)

@@ -88,8 +88,13 @@ def test_no_matched_edge_is_nan_not_zero():
 
 
 def _delays(mean_ms, n_matched, n_missed=0):
-    row = {"mean_ms": mean_ms, "mean_abs_ms": abs(mean_ms), "median_ms": mean_ms, "n_matched": n_matched,
-           "n_missed": n_missed}  # fmt: skip
+    row = {
+        "mean_ms": mean_ms,
+        "mean_abs_ms": abs(mean_ms),
+        "median_ms": mean_ms,
+        "n_matched": n_matched,
+        "n_missed": n_missed,
+    }
     return {"touchdown": row, "liftoff": dict(row)}
 
 
@@ -128,8 +133,12 @@ def test_aggregate_delays_equals_pooled_events():
 
 
 def test_fleet_mean_counts_robots_and_weights():
-    rows = [{"drift": {"pct": 2.0, "n": 10}}, {"drift": {"pct": 4.0, "n": 30}}, {"drift": {"pct": float("nan"), "n": 0}},
-            {"other": 1}]  # fmt: skip
+    rows = [
+        {"drift": {"pct": 2.0, "n": 10}},
+        {"drift": {"pct": 4.0, "n": 30}},
+        {"drift": {"pct": float("nan"), "n": 0}},
+        {"other": 1},
+    ]
     m = scores.fleet_mean(rows, ("drift", "pct"))
     assert m == {"mean": 3.0, "n_robots": 2, "n_skipped": 2}
     w = scores.fleet_mean(rows, ("drift", "pct"), weight=("drift", "n"))
@@ -181,17 +190,21 @@ def test_standing_still_on_a_loop():
     dtheta = 2 * np.pi / 1999
     h = 12 * np.sin(dtheta / 2)
     k = [int(np.floor(x / h)) + 1 for x in (2.0, 5.0, 10.0)]
-    np.testing.assert_allclose(t["per_length"], [100 * 12 * np.sin(kk * dtheta / 2) / x for kk, x in zip(k, (2, 5, 10))],
-                               rtol=1e-6)  # fmt: skip
-    np.testing.assert_allclose(r["per_length"], [np.degrees(kk * dtheta) / x for kk, x in zip(k, (2, 5, 10))], rtol=1e-6)
+    np.testing.assert_allclose(
+        t["per_length"], [100 * 12 * np.sin(kk * dtheta / 2) / x for kk, x in zip(k, (2, 5, 10))], rtol=1e-6
+    )
+    np.testing.assert_allclose(
+        r["per_length"], [np.degrees(kk * dtheta) / x for kk, x in zip(k, (2, 5, 10))], rtol=1e-6
+    )
     assert 85.0 < t["mean"] < 101.0 and t["n_segments"] == sum(t["n_segments_per_length"]) > 0
 
 
 def test_odometry_scores_perfect_and_too_short():
     pose = _loop_pose(500)
     s = scores.odometry_scores(pose[:, :3], pose[:, 3:], pose)
-    np.testing.assert_allclose([s["drift_pct"]["mean"], s["drift_deg_per_m"]["mean"], s["z_error_rms_m"]], 0.0,
-                               atol=1e-9)  # fmt: skip
+    np.testing.assert_allclose(
+        [s["drift_pct"]["mean"], s["drift_deg_per_m"]["mean"], s["z_error_rms_m"]], 0.0, atol=1e-9
+    )
     short = scores.odometry_scores(pose[:20, :3], pose[:20, 3:], pose[:20])  # 1.4 m of path
     assert short["drift_pct"]["n_segments"] == 0 and np.isnan(short["drift_pct"]["mean"])
     text = to_json(short)

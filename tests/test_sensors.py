@@ -20,7 +20,11 @@ _imu_step = jax.jit(S.imu_step)
 
 def _wall(distance: float, yaw: float = 0.0) -> jax.Array:
     """True depth of an infinite wall whose face passes through (distance, 0) with normal along yaw."""
-    box = Boxes(jnp.array([[distance + 0.5 * np.cos(yaw), 0.5 * np.sin(yaw), 0.0]]), jnp.array([[0.5, 80.0, 80.0]]), jnp.array([yaw]))
+    box = Boxes(
+        jnp.array([[distance + 0.5 * np.cos(yaw), 0.5 * np.sin(yaw), 0.0]]),
+        jnp.array([[0.5, 80.0, 80.0]]),
+        jnp.array([yaw]),
+    )
     return _cast(jnp.zeros(3), _R_LEVEL, _RAYS, box, -100.0)
 
 
@@ -78,7 +82,9 @@ def test_bias_random_walk_variance_under_vmap_and_scan():
         state = S.imu_init(noise, key)
 
         def body(state, k):
-            state, _ = S.imu_step(noise, state, k, jnp.zeros(3), jnp.array([0.0, 0.0, 9.81]), jnp.array([1.0, 0, 0, 0]), dt)
+            state, _ = S.imu_step(
+                noise, state, k, jnp.zeros(3), jnp.array([0.0, 0.0, 9.81]), jnp.array([1.0, 0, 0, 0]), dt
+            )
             return state, None
 
         state, _ = jax.lax.scan(body, state, jax.random.split(key, steps))
@@ -93,7 +99,9 @@ def test_orientation_noise_levels_and_yaw_drift():
     quat_true = jnp.array([np.cos(0.2), np.sin(0.2) * 0.6, np.sin(0.2) * 0.8, 0.0])
     clean = S.SensorNoise.noiseless()
     state = S.imu_init(clean, jax.random.key(0))
-    _, (gyro, acc, quat) = _imu_step(clean, state, jax.random.key(1), jnp.ones(3), jnp.array([0.0, 0.0, 9.81]), quat_true, 0.004)
+    _, (gyro, acc, quat) = _imu_step(
+        clean, state, jax.random.key(1), jnp.ones(3), jnp.array([0.0, 0.0, 9.81]), quat_true, 0.004
+    )
     np.testing.assert_allclose(np.asarray(quat), np.asarray(quat_true), atol=1e-6)
     np.testing.assert_allclose(np.asarray(gyro), 1.0)
     # Pure yaw drift leaves the gravity direction seen in the base frame unchanged.

@@ -20,9 +20,16 @@ from jaxquad.slam import SlamParams, SlamSpec, final_poses, grid_spec, load_para
 
 # A 2 m wide corridor around a block, with features on its walls so that places differ.
 WORLD = np.concatenate(
-    [box(-5, -4, 5, 4), box(-3, -2, 3, 2), box(-1.0, -4.0, -0.6, -3.6), box(1.5, -2.3, 2.3, -2.0),
-     box(4.6, 0.5, 5.0, 1.3), box(-5.0, -1.0, -4.7, -0.2), box(0.0, 3.7, 0.8, 4.0)]
-)  # fmt: skip
+    [
+        box(-5, -4, 5, 4),
+        box(-3, -2, 3, 2),
+        box(-1.0, -4.0, -0.6, -3.6),
+        box(1.5, -2.3, 2.3, -2.0),
+        box(4.6, 0.5, 5.0, 1.3),
+        box(-5.0, -1.0, -4.7, -0.2),
+        box(0.0, 3.7, 0.8, 4.0),
+    ]
+)
 BEARINGS = np.linspace(-np.pi, np.pi, 120, endpoint=False)
 DT = 0.1  # s between scans
 GRID = grid_spec((-6.0, -5.0, 6.0, 5.0), 0.05, 6.0)
@@ -69,11 +76,18 @@ def _inputs(truth, odom, lo, ranges):
     step = _relative(lo[:-1], lo[1:]) / DT
     twist = np.vstack([step, step[-1:]])
     return {
-        "t": np.arange(S) * DT, "odom": odom[None], "lo_pose": lo[None], "ranges": ranges[None],
-        "bearings": BEARINGS, "T_base_laser": np.zeros(3), "valid": np.ones((1, S), bool),
-        "lo_twist": twist[None], "lo_twist_cov": np.broadcast_to(np.diag([0.01, 0.01, 4e-4]), (1, S, 3, 3)),
-        "lo_valid": np.ones((1, S), bool), "gt": truth[None],
-    }  # fmt: skip
+        "t": np.arange(S) * DT,
+        "odom": odom[None],
+        "lo_pose": lo[None],
+        "ranges": ranges[None],
+        "bearings": BEARINGS,
+        "T_base_laser": np.zeros(3),
+        "valid": np.ones((1, S), bool),
+        "lo_twist": twist[None],
+        "lo_twist_cov": np.broadcast_to(np.diag([0.01, 0.01, 4e-4]), (1, S, 3, 3)),
+        "lo_valid": np.ones((1, S), bool),
+        "gt": truth[None],
+    }
 
 
 LOOP = _path([(0.0, -3.0), (4.0, -3.0), (4.0, 3.0), (-4.0, 3.0), (-4.0, -3.0), (2.0, -3.0)], 0.1)
@@ -155,7 +169,7 @@ def test_fleet_equals_single_robots():
         w = x2[key]
         w = np.concatenate([w, np.repeat(w[:, -1:], pad, 1)], 1) if w.ndim > 1 else w
         if key == "valid":
-            w[:, len(other):] = False  # the second robot's log ends early
+            w[:, len(other) :] = False  # the second robot's log ends early
         both[key] = np.concatenate([v, w])
     state2, out2, _ = run_fleet(_spec("preintegrated"), SlamParams(), both)
     single2, outs2, _ = run_fleet(_spec("preintegrated"), SlamParams(), {k: v for k, v in x2.items()})
@@ -172,8 +186,14 @@ def _small_params(tmp_path):
 
 def test_cli_on_a_laser_npz_with_truth_and_a_carmen_log(tmp_path, capsys):
     odom = _drifted(LOOP, 0.05, 0.04)
-    log = LaserLog(scan_t=np.arange(len(LOOP)) * DT + 100.0, ranges=LOOP_RANGES, bearings=BEARINGS,
-                   odom_t=np.arange(len(LOOP)) * DT + 100.0, odom_xytheta=odom, gt_xytheta=LOOP)  # fmt: skip
+    log = LaserLog(
+        scan_t=np.arange(len(LOOP)) * DT + 100.0,
+        ranges=LOOP_RANGES,
+        bearings=BEARINGS,
+        odom_t=np.arange(len(LOOP)) * DT + 100.0,
+        odom_xytheta=odom,
+        gt_xytheta=LOOP,
+    )
     save_laser_npz(tmp_path / "loop.npz", log)
     params = _small_params(tmp_path)
     assert main(["slam", str(tmp_path / "loop.npz"), "--out", str(tmp_path / "a"), "--params", str(params)]) == 0
@@ -193,8 +213,16 @@ def test_cli_on_a_laser_npz_with_truth_and_a_carmen_log(tmp_path, capsys):
         rr = " ".join(f"{v:.4f}" if np.isfinite(v) else "81.91" for v in r)
         lines.append(f"FLASER {len(r)} {rr} {o[0]} {o[1]} {o[2]} {o[0]} {o[1]} {o[2]} {t:.3f} host {t:.3f}")
     (tmp_path / "loop.clf").write_text("\n".join(lines) + "\n")
-    argv = ["slam", str(tmp_path / "loop.clf"), "--out", str(tmp_path / "b"), "--params", str(params),
-            "--flaser-fov-deg", "357"]  # fmt: skip
+    argv = [
+        "slam",
+        str(tmp_path / "loop.clf"),
+        "--out",
+        str(tmp_path / "b"),
+        "--params",
+        str(params),
+        "--flaser-fov-deg",
+        "357",
+    ]
     assert main(argv) == 0
     assert json.loads((tmp_path / "b" / "summary.json").read_text())["format"] == "carmen"
     np.testing.assert_allclose(read_tum(tmp_path / "b" / "trajectory_final.tum").t_s, log.scan_t, atol=1e-6)
@@ -216,8 +244,12 @@ def test_params_file_checks(tmp_path):
     values = load_params()
     assert values["minimum_travel_distance"] == 0.1 and values["loop_match_minimum_chain_size"] == 7
     p = tmp_path / "p.yaml"
-    for text, words in [("nope: 1\n", "unknown key"), ("node_capacity: 2.5\n", "integer"),
-                        ("loop_ambiguity_ratio: 2\n", "out of range"), ("resolution: .nan\n", "finite")]:  # fmt: skip
+    for text, words in [
+        ("nope: 1\n", "unknown key"),
+        ("node_capacity: 2.5\n", "integer"),
+        ("loop_ambiguity_ratio: 2\n", "out of range"),
+        ("resolution: .nan\n", "finite"),
+    ]:
         p.write_text(text)
         with pytest.raises(ValueError, match=words):
             load_params(p)

@@ -42,16 +42,19 @@ def test_comments_blank_lines_and_normalization(tmp_path):
     np.testing.assert_allclose(tr.q_world_body_xyzw, [[0, 0, 0, 1], [0, 0.6, 0, 0.8]], atol=1e-16)
 
 
-@pytest.mark.parametrize(("text", "message"), [
-    ("1 0 0 0 0 0 0 1\n2 0 0 0 0 0 1\n", r"b\.tum:2: expected 8 fields .* got 7"),
-    ("1 0 0 0 0 0 0 1\n# c\n2 0 0 x 0 0 0 1\n", r"b\.tum:3: not a number: 'x'"),
-    ("1 0 0 nan 0 0 0 1\n", r"b\.tum:1: NaN or infinite"),
-    ("1 0 0 0 0 0 0 inf\n", r"b\.tum:1: NaN or infinite"),
-    ("1 0 0 0 0 0 0 0\n", r"b\.tum:1: zero quaternion"),
-    ("1 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n", r"b\.tum:2: timestamp 1\.0 does not increase \(line 1"),
-    ("2 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n", r"b\.tum:2: timestamp"),
-    ("# only a comment\n", r"b\.tum: no poses"),
-])
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("1 0 0 0 0 0 0 1\n2 0 0 0 0 0 1\n", r"b\.tum:2: expected 8 fields .* got 7"),
+        ("1 0 0 0 0 0 0 1\n# c\n2 0 0 x 0 0 0 1\n", r"b\.tum:3: not a number: 'x'"),
+        ("1 0 0 nan 0 0 0 1\n", r"b\.tum:1: NaN or infinite"),
+        ("1 0 0 0 0 0 0 inf\n", r"b\.tum:1: NaN or infinite"),
+        ("1 0 0 0 0 0 0 0\n", r"b\.tum:1: zero quaternion"),
+        ("1 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n", r"b\.tum:2: timestamp 1\.0 does not increase \(line 1"),
+        ("2 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n", r"b\.tum:2: timestamp"),
+        ("# only a comment\n", r"b\.tum: no poses"),
+    ],
+)
 def test_malformed_files_give_one_line_errors(tmp_path, text, message):
     path = tmp_path / "b.tum"
     path.write_text(text)

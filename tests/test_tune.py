@@ -80,8 +80,25 @@ def _simulate(robot, phase: float, seed: int):
     dof = np.asarray(robot.dof_adr)
     sites = list(robot.foot_site_ids)
     weight = -m.opt.gravity[2] * m.body_subtreemass[robot.base_body_id]
-    rows = {k: [] for k in ("t", "q", "qd", "tau", "gyro", "acc", "quat_wxyz", "gt_pose", "gt_contact", "gt_force",
-                            "p", "tau_bar", "J_z", "qvel")}  # fmt: skip
+    rows = {
+        k: []
+        for k in (
+            "t",
+            "q",
+            "qd",
+            "tau",
+            "gyro",
+            "acc",
+            "quat_wxyz",
+            "gt_pose",
+            "gt_contact",
+            "gt_force",
+            "p",
+            "tau_bar",
+            "J_z",
+            "qvel",
+        )
+    }
     forces = np.zeros(4)
     for k in range(round(_SECONDS / _SIM_DT)):
         t = k * _SIM_DT
@@ -107,8 +124,9 @@ def _simulate(robot, phase: float, seed: int):
         forces = _schedule(t + _SIM_DT, phase, weight)
         d.qfrc_applied[:] = 0.0
         for site, fz in zip(sites, forces):
-            mujoco.mj_applyFT(m, d, np.array([0.0, 0.0, fz]), np.zeros(3), d.site_xpos[site], m.site_bodyid[site],
-                              d.qfrc_applied)  # fmt: skip
+            mujoco.mj_applyFT(
+                m, d, np.array([0.0, 0.0, fz]), np.zeros(3), d.site_xpos[site], m.site_bodyid[site], d.qfrc_applied
+            )
         mujoco.mj_step(m, d)
     return {k: np.asarray(v) for k, v in rows.items()}
 
@@ -122,8 +140,13 @@ def _fleet_log(robot, sims) -> dict:
     per = ("q", "qd", "tau", "gyro", "acc", "quat_wxyz", "gt_pose", "gt_contact", "gt_force")
     log = {k: np.stack([s[k] for s in sims]) for k in per}
     n, T = log["q"].shape[:2]
-    log.update(t=sims[0]["t"] + 0.01, robot=np.array("go2"), joint_names=np.array(robot.joint_names),
-               fallen=np.zeros(n, bool), valid=np.ones((n, T), bool))  # fmt: skip
+    log.update(
+        t=sims[0]["t"] + 0.01,
+        robot=np.array("go2"),
+        joint_names=np.array(robot.joint_names),
+        fallen=np.zeros(n, bool),
+        valid=np.ones((n, T), bool),
+    )
     return log
 
 
@@ -136,15 +159,24 @@ def fleet(sims):
     restart = np.zeros((n, T), bool)
     restart[:, 0] = True
     stack = lambda k: jnp.asarray(np.stack([s[k] for s in sims]), jnp.float32)  # noqa: E731
-    inputs = tn.ObserverInputs(p=stack("p"), tau_bar=stack("tau_bar"), J_z=stack("J_z"), dt=jnp.asarray(dt),
-                              restart=jnp.asarray(restart))  # fmt: skip
-    truth = tn.ContactTruth(contact=jnp.asarray(np.stack([s["gt_contact"] for s in sims])),
-                           force_z=stack("gt_force")[..., 2], valid=jnp.ones((n, T), bool))  # fmt: skip
+    inputs = tn.ObserverInputs(
+        p=stack("p"), tau_bar=stack("tau_bar"), J_z=stack("J_z"), dt=jnp.asarray(dt), restart=jnp.asarray(restart)
+    )
+    truth = tn.ContactTruth(
+        contact=jnp.asarray(np.stack([s["gt_contact"] for s in sims])),
+        force_z=stack("gt_force")[..., 2],
+        valid=jnp.ones((n, T), bool),
+    )
     return inputs, truth, sims[0]["t"]
 
 
-_SPEC = tn.GridSpec(bandwidth=(15.0, 60.0), alpha_front=(0.1, 0.5), alpha_rear=(0.1, 0.5),
-                   threshold_on=(1.0, 5.0, 15.0), off_ratio=(0.5, 1.0))  # fmt: skip
+_SPEC = tn.GridSpec(
+    bandwidth=(15.0, 60.0),
+    alpha_front=(0.1, 0.5),
+    alpha_rear=(0.1, 0.5),
+    threshold_on=(1.0, 5.0, 15.0),
+    off_ratio=(0.5, 1.0),
+)
 
 
 # ---------------------------------------------------------------- observer inputs from a log
@@ -168,8 +200,9 @@ def test_observer_inputs_from_a_log_match_mujoco_c(robot, sims):
             qvel = s["qvel"][k].copy()
             qvel[:3] = (s["gt_pose"][k, :3] - s["gt_pose"][k - 1, :3]) / (s["t"][k] - s["t"][k - 1])
             tau = s["tau"][k] if not (i == 1 and k == 5) else np.zeros(robot.nu)
-            p, tau_bar, J_z = _reference_terms(m, d_fd, s["gt_pose"][k].tolist() + list(s["q"][k]), qvel, tau,
-                                               np.asarray(robot.dof_adr))  # fmt: skip
+            p, tau_bar, J_z = _reference_terms(
+                m, d_fd, s["gt_pose"][k].tolist() + list(s["q"][k]), qvel, tau, np.asarray(robot.dof_adr)
+            )
             np.testing.assert_allclose(inputs.p[i, k], p, rtol=1e-4, atol=1e-4)
             np.testing.assert_allclose(inputs.tau_bar[i, k], tau_bar, rtol=1e-3, atol=2e-3)
             np.testing.assert_allclose(inputs.J_z[i, k], J_z, atol=1e-5)
@@ -210,8 +243,13 @@ def test_the_tuner_sees_the_pipelines_input_arrays(robot, sims):
     s = {k: v[:10] for k, v in sims[1].items()}
     perm = np.random.default_rng(3).permutation(robot.nu)  # the log lists joints in another order
     log = {k: s[k].copy() for k in ("gyro", "acc", "quat_wxyz", "gt_pose", "gt_contact", "gt_force")}
-    log.update(q=s["q"][:, perm], qd=s["qd"][:, perm], tau=s["tau"][:, perm].copy(), t=s["t"] + 0.01,
-               joint_names=np.array(robot.joint_names)[perm])  # fmt: skip
+    log.update(
+        q=s["q"][:, perm],
+        qd=s["qd"][:, perm],
+        tau=s["tau"][:, perm].copy(),
+        t=s["t"] + 0.01,
+        joint_names=np.array(robot.joint_names)[perm],
+    )
     log["t"][6:] += 0.2  # a gap before sample 6
     log["tau"][3, 0], log["tau"][4, 5] = 1e3, np.nan  # a saturated and a missing torque
     # The IMU's attitude, not gt_pose's: 0.1 rad off in roll and not of unit norm.
@@ -221,9 +259,14 @@ def test_the_tuner_sees_the_pipelines_input_arrays(robot, sims):
     params = pipeline.PipelineParams.default()
     inputs, config = pipeline.inputs_from_log(robot, log, "mixed")
     obs, truth, t = tn.observer_inputs(
-        robot, log, max_gap_s=float(params.max_gap_s), torque_saturation=float(params.torque_saturation),
-        axes=config.observer_axes, passive=config.observer_passive, rows=config.observer_rows,
-    )  # fmt: skip
+        robot,
+        log,
+        max_gap_s=float(params.max_gap_s),
+        torque_saturation=float(params.torque_saturation),
+        axes=config.observer_axes,
+        passive=config.observer_passive,
+        rows=config.observer_rows,
+    )
     one = jax.tree.map(lambda a: a[0], inputs)  # a single log is a fleet of one
     np.testing.assert_array_equal(one.q, np.float32(s["q"]))  # back in the model's joint order
     np.testing.assert_array_equal(truth.valid, inputs.valid)
@@ -276,10 +319,13 @@ def test_full_force_observer_recovers_vertical_forces_under_tangential_forces(ro
     params = ObserverParams.paper(4, "plain", bandwidth=60.0)
     for axes, rows in (("xyz", J.reshape(12, m.nv)), ("z", J[:, 2, :])):
         inputs = tn.ObserverInputs(
-            p=jnp.zeros((T, m.nv)), tau_bar=jnp.tile(jnp.asarray(-J.reshape(12, m.nv).T @ force.ravel(), jnp.float32), (T, 1)),
-            J_z=jnp.tile(jnp.asarray(rows, jnp.float32), (T, 1, 1)), dt=jnp.asarray(dt),
-            restart=jnp.arange(T) == 0, axes=axes,
-        )  # fmt: skip
+            p=jnp.zeros((T, m.nv)),
+            tau_bar=jnp.tile(jnp.asarray(-J.reshape(12, m.nv).T @ force.ravel(), jnp.float32), (T, 1)),
+            J_z=jnp.tile(jnp.asarray(rows, jnp.float32), (T, 1, 1)),
+            dt=jnp.asarray(dt),
+            restart=jnp.arange(T) == 0,
+            axes=axes,
+        )
         est = tn.run_observer(params, inputs)
         assert est.force_z.shape == (T, 4) and inputs.n_feet == 4
         err = np.abs(np.asarray(est.force_z[-1]) - force[:, 2])
@@ -319,8 +365,12 @@ def test_grid_finds_the_configuration_of_a_one_at_a_time_loop(fleet):
                 for on in _SPEC.threshold_on:
                     for ratio in _SPEC.off_ratio:
                         p = dataclasses.replace(
-                            base, bandwidth=jnp.float32(b), alpha=jnp.array([af, af, ar, ar], jnp.float32),
-                            threshold_on=jnp.full(4, on, jnp.float32), threshold_off=jnp.full(4, on * ratio, jnp.float32))
+                            base,
+                            bandwidth=jnp.float32(b),
+                            alpha=jnp.array([af, af, ar, ar], jnp.float32),
+                            threshold_on=jnp.full(4, on, jnp.float32),
+                            threshold_off=jnp.full(4, on * ratio, jnp.float32),
+                        )
                         rows.append((p, tn.fleet_scores(p, inputs, truth, t)))
     f1 = np.array([s["f1"] for _, s in rows])
     np.testing.assert_allclose(res.f1, f1, atol=1e-6)
@@ -340,8 +390,9 @@ def test_grid_spec_errors():
     with pytest.raises((ValueError, TypeError), match="size"):
         tn.GridSpec.default((3, 3))
     with pytest.raises(ValueError, match="off_ratio"):
-        tn.GridSpec.default(2).__class__(bandwidth=(10.0,), alpha_front=(0.1,), alpha_rear=(0.1,), threshold_on=(1.0,),
-                                        off_ratio=(0.0,))  # fmt: skip
+        tn.GridSpec.default(2).__class__(
+            bandwidth=(10.0,), alpha_front=(0.1,), alpha_rear=(0.1,), threshold_on=(1.0,), off_ratio=(0.0,)
+        )
     with pytest.raises(ValueError, match="alpha"):
         tn.GridSpec(bandwidth=(10.0,), alpha_front=(1.5,), alpha_rear=(0.1,), threshold_on=(1.0,), off_ratio=(1.0,))
     assert tn.GridSpec.default(4).size == 4**5
@@ -365,8 +416,12 @@ def test_gradient_decreases_the_loss_and_improves_f1_from_a_bad_start(fleet):
     inputs, truth, t = fleet
     tr_in, tr_truth = tn.select_robots(inputs, [0, 1, 2]), tn.select_robots(truth, [0, 1, 2])
     bad = dataclasses.replace(
-        ObserverParams.paper(4, "mixed"), bandwidth=jnp.float32(8.0), alpha=jnp.full(4, 0.03, jnp.float32),
-        threshold_on=jnp.full(4, 60.0, jnp.float32), threshold_off=jnp.full(4, 50.0, jnp.float32))  # fmt: skip
+        ObserverParams.paper(4, "mixed"),
+        bandwidth=jnp.float32(8.0),
+        alpha=jnp.full(4, 0.03, jnp.float32),
+        threshold_on=jnp.full(4, 60.0, jnp.float32),
+        threshold_off=jnp.full(4, 50.0, jnp.float32),
+    )
     res = tn.gradient_tune(bad, tr_in, tr_truth, steps=60, learning_rate=0.1, patience=10)
     assert res.loss[res.best_step] < 0.7 * res.loss[0]
     # Finite differences of the surrogate agree with its gradient (float32, central, one direction).
@@ -387,8 +442,9 @@ def test_gradient_decreases_the_loss_and_improves_f1_from_a_bad_start(fleet):
 @pytest.mark.parametrize("suffix", [".json", ".yaml"])
 def test_saved_params_load_back_and_reproduce_the_scores(fleet, tmp_path, suffix):
     inputs, truth, t = fleet
-    spec = tn.GridSpec(bandwidth=(20.0, 50.0), alpha_front=(0.2,), alpha_rear=(0.3,), threshold_on=(4.0, 12.0),
-                      off_ratio=(0.5,))  # fmt: skip
+    spec = tn.GridSpec(
+        bandwidth=(20.0, 50.0), alpha_front=(0.2,), alpha_rear=(0.3,), threshold_on=(4.0, 12.0), off_ratio=(0.5,)
+    )
     best, summary = tn.tune_fleet("grid", inputs, truth, t, spec=spec, chunk=4)
     assert summary["robots_train"] == 3 and summary["robots_heldout"] == 1
     path = tn.save_params(tmp_path / f"best{suffix}", best, header="tuned by grid search")
@@ -419,9 +475,13 @@ def test_bad_input_gives_one_line_errors(fleet, tmp_path):
 def test_cli_one_line_errors(tmp_path, capsys):
     from jaxquad.cli import main
 
-    assert main(["tune", "--log", str(tmp_path / "none.npz"), "--method", "grid", "--out", str(tmp_path / "p.yaml")]) == 1
+    assert (
+        main(["tune", "--log", str(tmp_path / "none.npz"), "--method", "grid", "--out", str(tmp_path / "p.yaml")]) == 1
+    )
     assert "log file not found" in capsys.readouterr().err
-    assert main(["tune", "--log", str(tmp_path / "none.npz"), "--method", "grid", "--out", str(tmp_path / "p.txt")]) == 1
+    assert (
+        main(["tune", "--log", str(tmp_path / "none.npz"), "--method", "grid", "--out", str(tmp_path / "p.txt")]) == 1
+    )
     err = capsys.readouterr().err.strip()
     assert "--out must end in" in err and "\n" not in err
 
@@ -434,7 +494,17 @@ def test_cli_end_to_end_on_a_written_log(robot, sims, tmp_path, capsys):
     log = _fleet_log(robot, [{k: v[:12] for k, v in s.items()} for s in sims[:2]])
     save_log(tmp_path / "fleet.npz", log)
     out = tmp_path / "best.json"
-    args = ["tune", "--log", str(tmp_path / "fleet.npz"), "--method", "grid", "--grid-size", "1,1,1,2,1", "--out", str(out)]
+    args = [
+        "tune",
+        "--log",
+        str(tmp_path / "fleet.npz"),
+        "--method",
+        "grid",
+        "--grid-size",
+        "1,1,1,2,1",
+        "--out",
+        str(out),
+    ]
     assert main(args) == 0
     summary = json.loads(capsys.readouterr().out)  # pretty-printed: the whole of stdout
     assert summary["configurations"] == 2 and summary["robots_heldout"] == 1

@@ -40,7 +40,9 @@ def test_recovers_rigid_twist_with_feet_fixed_in_world():
         v_base = rng.standard_normal(3)
         # A foot fixed in the world moves in the base frame at -v_base - omega x p.
         v_foot = -v_base - np.cross(omega, p)
-        t = _twist(jnp.asarray(p, jnp.float32), jnp.asarray(v_foot, jnp.float32), jnp.asarray(omega, jnp.float32), jnp.ones(4))
+        t = _twist(
+            jnp.asarray(p, jnp.float32), jnp.asarray(v_foot, jnp.float32), jnp.asarray(omega, jnp.float32), jnp.ones(4)
+        )
         np.testing.assert_allclose(t.v_base, v_base, atol=1e-5)
         np.testing.assert_allclose(t.omega_base, omega, atol=1e-5)
         assert bool(t.linear_observed) and bool(t.valid)
@@ -94,7 +96,9 @@ def test_gradient_matches_finite_differences_of_lstsq():
     fd = np.array([(ref(x0 + eps * e) - ref(x0 - eps * e)) / (2 * eps) for e in np.eye(24)])
 
     def f(x):
-        t = body_twist(x[:12].reshape(4, 3), x[12:].reshape(4, 3), jnp.asarray(omega_imu, jnp.float32), jnp.asarray(w, jnp.float32))
+        t = body_twist(
+            x[:12].reshape(4, 3), x[12:].reshape(4, 3), jnp.asarray(omega_imu, jnp.float32), jnp.asarray(w, jnp.float32)
+        )
         return jnp.asarray(probe, jnp.float32) @ jnp.concatenate([t.v_base, t.omega_base])
 
     g = jax.jit(jax.grad(f))(jnp.asarray(x0, jnp.float32))
@@ -105,6 +109,7 @@ def _grads(p, v, omega, w):
     def loss(p, v, omega, w):
         t = body_twist(p, v, omega, w)
         return jnp.sum(t.v_base**2) + jnp.sum(t.omega_base**2) + t.n_stance
+
     return jax.jit(jax.grad(loss, argnums=(0, 1, 2, 3)))(p, v, omega, w)
 
 
@@ -206,8 +211,16 @@ def test_covariance_is_calibrated_on_gaussian_foot_noise(prior_dof, expected):
     v_base, omega = rng.standard_normal((n, 3)), rng.standard_normal((n, 3))
     v_foot = -v_base[:, None] - np.cross(omega[:, None], p) + sigma * rng.standard_normal((n, 4, 3))
     f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
-    t = _twist_batch(f32(p), f32(v_foot), f32(omega), jnp.ones((n, 4)), jnp.full(n, 1e3), jnp.full(n, 1.5),
-                     jnp.full(n, sigma), jnp.full(n, prior_dof))  # fmt: skip
+    t = _twist_batch(
+        f32(p),
+        f32(v_foot),
+        f32(omega),
+        jnp.ones((n, 4)),
+        jnp.full(n, 1e3),
+        jnp.full(n, 1.5),
+        jnp.full(n, sigma),
+        jnp.full(n, prior_dof),
+    )
     e = np.asarray(t.v_base) - v_base
     nees = np.einsum("ti,tij,tj->t", e, np.linalg.inv(np.asarray(t.cov_v_base, np.float64)), e)
     assert abs(nees.mean() - expected) < 0.12 * expected

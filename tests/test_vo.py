@@ -33,10 +33,14 @@ def _run(coupling: str):
 
 
 def _sequence(T_world_base: list[np.ndarray], boxes, floor=0.0, blank=()) -> VoInputs:
-    depth = [np.zeros((30, 40), np.float32) if k in blank else np.asarray(_render(T @ T_BASE_CAM, boxes, floor))
-             for k, T in enumerate(T_world_base)]  # fmt: skip
-    R = [np.eye(3)] + [T_BASE_CAM[:3, :3].T @ (a[:3, :3].T @ b[:3, :3]) @ T_BASE_CAM[:3, :3]
-                       for a, b in itertools.pairwise(T_world_base)]  # fmt: skip
+    depth = [
+        np.zeros((30, 40), np.float32) if k in blank else np.asarray(_render(T @ T_BASE_CAM, boxes, floor))
+        for k, T in enumerate(T_world_base)
+    ]
+    R = [np.eye(3)] + [
+        T_BASE_CAM[:3, :3].T @ (a[:3, :3].T @ b[:3, :3]) @ T_BASE_CAM[:3, :3]
+        for a, b in itertools.pairwise(T_world_base)
+    ]
     f = lambda x: jnp.asarray(np.stack(x), jnp.float32)
     return VoInputs(depth=f(depth), R_prev_cur_gyro=f(R), T_world_base_leg=f(T_world_base))
 

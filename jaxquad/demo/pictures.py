@@ -9,8 +9,10 @@ import numpy as np
 from jaxquad.demo.scans import camera_pose_2d, frame_samples
 from jaxquad.demo.summary import _get
 
-def draw(folder: Path, log, runs: dict, sources: tuple[str, ...], scans: dict, maps: list, window_s: float,
-         band_height: int) -> None:
+
+def draw(
+    folder: Path, log, runs: dict, sources: tuple[str, ...], scans: dict, maps: list, window_s: float, band_height: int
+) -> None:
     """trajectories.png, contacts.png and scan_frame.png into `folder`."""
     from jaxquad import report
     from jaxquad.robots import load
@@ -41,17 +43,27 @@ def draw(folder: Path, log, runs: dict, sources: tuple[str, ...], scans: dict, m
 
     # Contacts and height: the first robot that did not fall; contacts in a window mid-run.
     i = int(np.flatnonzero(~fallen)[0]) if (~fallen).any() else 0
-    report.plot_heights(folder / "heights.png", t, gt[i, :, 2], {s: est[s].p_world_base[i, :, 2] for s in sources},
-                        title=f"Base height of robot {i}: ground truth and leg-inertial odometry")  # fmt: skip
+    report.plot_heights(
+        folder / "heights.png",
+        t,
+        gt[i, :, 2],
+        {s: est[s].p_world_base[i, :, 2] for s in sources},
+        title=f"Base height of robot {i}: ground truth and leg-inertial odometry",
+    )
     mid = 0.5 * (t[0] + t[-1])
     sel = (t >= mid - window_s / 2) & (t <= mid + window_s / 2)
     robot = load(str(np.asarray(log["robot"])))
     e = est[sources[0]]
     report.plot_contacts(
-        folder / "contacts.png", t[sel], np.asarray(log["gt_contact"])[i, sel], e.contact[i, sel],
-        np.asarray(log["gt_force"])[i, sel, :, 2], e.force_z_filtered[i, sel], list(robot.foot_names),
+        folder / "contacts.png",
+        t[sel],
+        np.asarray(log["gt_contact"])[i, sel],
+        e.contact[i, sel],
+        np.asarray(log["gt_force"])[i, sel, :, 2],
+        e.force_z_filtered[i, sel],
+        list(robot.foot_names),
         title=f"Foot contacts of robot {i}: ground truth and the mixed-mode observer ({sources[0]} numbers)",
-    )  # fmt: skip
+    )
 
     # Scan frame: the valid frame of robot i where the two bands disagree most with the map.
     k = frame_samples(t, np.asarray(log["depth_t"], np.float64))
@@ -62,9 +74,19 @@ def draw(folder: Path, log, runs: dict, sources: tuple[str, ...], scans: dict, m
     diff = np.sum(np.abs(np.where(both, s, 0.0) - np.where(both, b, 0.0)) + (np.isfinite(s) ^ np.isfinite(b)), axis=1)
     f = int(np.argmax(np.where(ok, diff, -1)))
     xy, yaw = camera_pose_2d(gt[i, k[f]], np.asarray(log["T_base_camera"], np.float64))
-    pts = {s: report.scan_points_world(scans[s][i, f], scans["bearings"], xy, float(yaw)) for s in ("baseline", "stabilized")}
+    pts = {
+        s: report.scan_points_world(scans[s][i, f], scans["bearings"], xy, float(yaw))
+        for s in ("baseline", "stabilized")
+    }
     report.plot_scan_frame(
-        folder / "scan_frame.png", np.asarray(log["depth"])[i, f], np.asarray(log["K"], np.float64),
-        float(scans["roll"][i, f]), float(scans["pitch"][i, f]), band_height, pts, maps[world[i]], xy,
+        folder / "scan_frame.png",
+        np.asarray(log["depth"])[i, f],
+        np.asarray(log["K"], np.float64),
+        float(scans["roll"][i, f]),
+        float(scans["pitch"][i, f]),
+        band_height,
+        pts,
+        maps[world[i]],
+        xy,
         title=f"Robot {i}, depth frame at t = {float(np.asarray(log['depth_t'])[f]):.2f} s",
-    )  # fmt: skip
+    )

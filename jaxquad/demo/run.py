@@ -54,10 +54,17 @@ def contact_sources(robot: str, style: str) -> dict[str, tuple[str, Path | None]
 
 
 def run_demo(
-    out, robots: int = 4, seconds: float = 20.0, robot: str = "go2", world: str = "house",
-    style: str = "aggressive", seed: int = 0, resolution: tuple[int, int] = (160, 120),
-    progress: bool = True, contact_window_s: float = 3.0,
-) -> dict:  # fmt: skip
+    out,
+    robots: int = 4,
+    seconds: float = 20.0,
+    robot: str = "go2",
+    world: str = "house",
+    style: str = "aggressive",
+    seed: int = 0,
+    resolution: tuple[int, int] = (160, 120),
+    progress: bool = True,
+    contact_window_s: float = 3.0,
+) -> dict:
     """Run every stage and write the report folder `out`; returns the summary dict."""
     from tqdm import tqdm
 
@@ -72,8 +79,16 @@ def run_demo(
         raise ValueError(f"--seconds must be positive, got {seconds}")
     out = Path(out).resolve()
     check_output_dir(out, kind=SUMMARY_KIND)
-    config = FleetConfig(robot=robot, world=world, n_robots=robots, style=style, seed=seed,
-                         depth=True, width=resolution[0], height=resolution[1])  # fmt: skip
+    config = FleetConfig(
+        robot=robot,
+        world=world,
+        n_robots=robots,
+        style=style,
+        seed=seed,
+        depth=True,
+        width=resolution[0],
+        height=resolution[1],
+    )
     wall: dict[str, float] = {}
     t_all = t0 = time.perf_counter()
     log = rollout(config, seconds, progress)
@@ -85,8 +100,16 @@ def run_demo(
         t0 = time.perf_counter()
         params = load_params(params_file, len(log["gt_contact"][0, 0]), contacts)
         with tqdm(total=robots, desc=f"estimate ({source} contacts)", unit="robot", disable=not progress) as bar:
-            runs[source] = estimate_and_score(log, contacts, params, lambda done, total: bar.update(done - bar.n),
-                                              BAND_HEIGHT, RANGE_MIN, RANGE_MAX, source="simulated fleet")  # fmt: skip
+            runs[source] = estimate_and_score(
+                log,
+                contacts,
+                params,
+                lambda done, total: bar.update(done - bar.n),
+                BAND_HEIGHT,
+                RANGE_MIN,
+                RANGE_MAX,
+                source="simulated fleet",
+            )
         if params_file is not None:
             runs[source].summary["params_file"] = str(params_file)
         wall[f"estimate_{source}"] = time.perf_counter() - t0
@@ -111,10 +134,19 @@ def run_demo(
             "kind": SUMMARY_KIND,
             "command": " ".join(["jaxquad"] + sys.argv[1:]) if Path(sys.argv[0]).name == "jaxquad" else None,
             "machine": machine(),
-            "config": {"robots": robots, "seconds": seconds, "robot": robot, "world": world, "style": style,
-                       "seed": seed, "resolution": list(resolution), "band_height_px": BAND_HEIGHT,
-                       "scan_range_m": [RANGE_MIN, RANGE_MAX], "map_hit_tolerance_m": HIT_TOLERANCE,
-                       "contact_window_s": contact_window_s},
+            "config": {
+                "robots": robots,
+                "seconds": seconds,
+                "robot": robot,
+                "world": world,
+                "style": style,
+                "seed": seed,
+                "resolution": list(resolution),
+                "band_height_px": BAND_HEIGHT,
+                "scan_range_m": [RANGE_MIN, RANGE_MAX],
+                "map_hit_tolerance_m": HIT_TOLERANCE,
+                "contact_window_s": contact_window_s,
+            },
             "fleet_config": dataclasses.asdict(config),
             "fallen": [bool(v) for v in np.asarray(log["fallen"])],
             "wall_s": wall,

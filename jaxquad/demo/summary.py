@@ -70,7 +70,9 @@ def format_table(sources: dict[str, dict], scans: dict | None = None) -> str:
     if scans:
         lines.append("")
         lines.append(f"{'scan vs true map':20s}" + "".join(f"{n:>14s}" for n in scans))
-        lines.append(f"{'end points on walls %':20s}" + "".join(f"{s['map_agreement_pct']:>14.1f}" for s in scans.values()))
+        lines.append(
+            f"{'end points on walls %':20s}" + "".join(f"{s['map_agreement_pct']:>14.1f}" for s in scans.values())
+        )
         lines.append(f"{'no reading %':20s}" + "".join(f"{s['no_reading_pct']:>14.1f}" for s in scans.values()))
     return "\n".join(lines)
 
@@ -78,6 +80,12 @@ def format_table(sources: dict[str, dict], scans: dict | None = None) -> str:
 def machine() -> dict:
     import jax
 
-    return {"node": platform.node(), "platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-            "cpu_count": os.cpu_count(), "python": platform.python_version(), "jax": jax.__version__,
-            "jax_devices": [str(d) for d in jax.devices()]}  # fmt: skip
+    return {
+        "node": platform.node(),
+        "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(),
+        "python": platform.python_version(),
+        "jax": jax.__version__,
+        "jax_devices": [str(d) for d in jax.devices()],
+    }

@@ -53,9 +53,7 @@ def attitude_from_acc(acc: Float[Array, "3"]) -> Float[Array, "4"]:
 
 
 def init(q_world_base: Float[Array, "4"]) -> AttitudeState:
-    return AttitudeState(
-        q_world_base=q_world_base, gyro_bias=jnp.zeros(3, dtype=q_world_base.dtype)
-    )
+    return AttitudeState(q_world_base=q_world_base, gyro_bias=jnp.zeros(3, dtype=q_world_base.dtype))
 
 
 def step(

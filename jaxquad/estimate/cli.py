@@ -13,26 +13,39 @@ from jaxquad.cli import add_devices_argument
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", help="robot log (.npz, single robot or fleet; see the README's log format)")
-    parser.add_argument("--out", required=True, help="output folder (created; replaced only if it holds an earlier estimate)")
-    parser.add_argument("--params", default=None, help="observer parameters, YAML or JSON (default: the paper's numbers)")
     parser.add_argument(
-        "--contacts", choices=("observer", "mixed", "sensor", "truth"), default="mixed",
+        "--out", required=True, help="output folder (created; replaced only if it holds an earlier estimate)"
+    )
+    parser.add_argument(
+        "--params", default=None, help="observer parameters, YAML or JSON (default: the paper's numbers)"
+    )
+    parser.add_argument(
+        "--contacts",
+        choices=("observer", "mixed", "sensor", "truth"),
+        default="mixed",
         help="contact source: momentum observer (plain or mixed mode), the robot's sensors, or ground truth (default mixed)",
-    )  # fmt: skip
-    parser.add_argument("--band-height", type=int, default=5, help="scan band height, px (default 5 = simulation; 30 on the real robot)")
+    )
+    parser.add_argument(
+        "--band-height", type=int, default=5, help="scan band height, px (default 5 = simulation; 30 on the real robot)"
+    )
     parser.add_argument("--range-min", type=float, default=0.2, help="scan minimum range, m (default 0.2)")
     parser.add_argument("--range-max", type=float, default=8.0, help="scan maximum range, m (default 8.0)")
     parser.add_argument(
-        "--feet", choices=("rolling", "point"), default="rolling",
+        "--feet",
+        choices=("rolling", "point"),
+        default="rolling",
         help="leg odometry foot model: contact points of round feet rolling on the floor, or the foot centres "
         "fixed in the world (default rolling)",
     )
     parser.add_argument(
-        "--robust", choices=("huber", "cauchy", "none"), default="huber",
+        "--robust",
+        choices=("huber", "cauchy", "none"),
+        default="huber",
         help="robust loss over the stance feet against slipping feet (default huber)",
     )
     parser.add_argument(
-        "--no-floor", action="store_true",
+        "--no-floor",
+        action="store_true",
         help="integrate the base height instead of fusing it with the floor under the stance feet (default: fuse)",
     )
     add_devices_argument(parser)
@@ -58,8 +71,18 @@ def run(args: argparse.Namespace) -> int:
         read_observer_params(args.params)
     odometry = dict(rolling=args.feet == "rolling", robust=args.robust, floor=not args.no_floor)
     with progress_bar("estimate", "robot") as progress:
-        summary = run_estimate(log, args.out, args.contacts, args.params, progress, args.band_height,
-                               args.range_min, args.range_max, odometry=odometry, devices=args.devices)  # fmt: skip
+        summary = run_estimate(
+            log,
+            args.out,
+            args.contacts,
+            args.params,
+            progress,
+            args.band_height,
+            args.range_min,
+            args.range_max,
+            odometry=odometry,
+            devices=args.devices,
+        )
     if not parallel.is_main():
         return 0
     robots = summary["robots"]
@@ -67,7 +90,9 @@ def run(args: argparse.Namespace) -> int:
     per_robot = [r["scores"] for r in robots]
     # Fleet means say what they average: robots (and, for drift, segments as weights).
     brief["contact_f1"] = scores.fleet_mean(per_robot, ("contacts", "f1"))
-    brief["drift_pct"] = scores.fleet_mean(per_robot, ("drift", "drift_pct", "mean"), ("drift", "drift_pct", "n_segments"))
+    brief["drift_pct"] = scores.fleet_mean(
+        per_robot, ("drift", "drift_pct", "mean"), ("drift", "drift_pct", "n_segments")
+    )
     brief["z_error_final_m"] = scores.fleet_mean(per_robot, ("drift", "z_error_final_m"))
     print(to_json(brief))
     return 0

@@ -56,9 +56,7 @@ def step(
     return DifferentiatorState(q_prev=q_prev, qd=qd), used
 
 
-def joint_velocities(
-    params: DifferentiatorParams, t: Float[Array, "T"], q: Float[Array, "T n"]
-) -> Float[Array, "T n"]:
+def joint_velocities(params: DifferentiatorParams, t: Float[Array, "T"], q: Float[Array, "T n"]) -> Float[Array, "T n"]:
     """Joint velocities (rad/s) of a whole sequence for one robot; sample 0 reads 0."""
 
     def body(state, x):

@@ -114,10 +114,17 @@ def robot_inputs(robot, log: Mapping, contacts: str = "truth") -> RobotInputs:
     f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
     return RobotInputs(
         dt=f32(np.broadcast_to(np.diff(t, prepend=t[0]), (n, T))),
-        q=f32(q), qd=f32(qd), tau=f32(tau), gyro=f32(lead(log["gyro"])), acc=f32(lead(log["acc"])),
-        quat_wxyz=f32(quat), contact_weight=f32(weight), valid=jnp.asarray(valid),
-        p0_world_base=f32(p0), yaw0=f32(yaw0),
-    )  # fmt: skip
+        q=f32(q),
+        qd=f32(qd),
+        tau=f32(tau),
+        gyro=f32(lead(log["gyro"])),
+        acc=f32(lead(log["acc"])),
+        quat_wxyz=f32(quat),
+        contact_weight=f32(weight),
+        valid=jnp.asarray(valid),
+        p0_world_base=f32(p0),
+        yaw0=f32(yaw0),
+    )
 
 
 def torque_ok(robot, tau: Float[Array, "*B nu"], saturation: Float[Array, ""]) -> Bool[Array, "*B"]:
@@ -133,8 +140,13 @@ def gaps(dt: Float[Array, "*B"], max_gap_s: Float[Array, ""]) -> tuple[Bool[Arra
 
 
 def full_state(
-    robot, p_world_base: Float[Array, "3"], q_world_base: Float[Array, "4"], q: Float[Array, "nu"],
-    v_world_base: Float[Array, "3"], omega_base: Float[Array, "3"], qd: Float[Array, "nu"],
+    robot,
+    p_world_base: Float[Array, "3"],
+    q_world_base: Float[Array, "4"],
+    q: Float[Array, "nu"],
+    v_world_base: Float[Array, "3"],
+    omega_base: Float[Array, "3"],
+    qd: Float[Array, "nu"],
 ) -> tuple[Float[Array, "nq"], Float[Array, "nv"]]:
     """MJX (qpos, qvel) of the robot: free joint (world position, wxyz; world linear, body angular
     velocity) and the actuated joints in the model's order; other coordinates at home / zero."""

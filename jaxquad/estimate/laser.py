@@ -74,10 +74,22 @@ def laser_inputs(
     depth = np.asarray(log["depth"]) if fleet else np.asarray(log["depth"])[None]
     ranges, bearings = [], None
     for i in range(n):
-        sc = log_scans(depth[i], depth_t, np.asarray(log["K"]), t, est.q_world_base[i], band_height, range_min,
-                       range_max, level=scans == "level")  # fmt: skip
-        r, b = {"stabilized": (sc.ranges_stabilized, sc.bearings), "baseline": (sc.ranges_baseline, sc.bearings),
-                "level": (sc.ranges_level, sc.bearings_level)}[scans]  # fmt: skip
+        sc = log_scans(
+            depth[i],
+            depth_t,
+            np.asarray(log["K"]),
+            t,
+            est.q_world_base[i],
+            band_height,
+            range_min,
+            range_max,
+            level=scans == "level",
+        )
+        r, b = {
+            "stabilized": (sc.ranges_stabilized, sc.bearings),
+            "baseline": (sc.ranges_baseline, sc.bearings),
+            "level": (sc.ranges_level, sc.bearings_level),
+        }[scans]
         ranges.append(np.asarray(r))
         bearings = np.asarray(b)
     twist, twist_cov = _planar_twist(
@@ -92,13 +104,17 @@ def laser_inputs(
     # A sample without stance holds the last twist and keeps integrating: only a fall ends the odometry.
     lo_valid = valid & ~np.asarray(est.flags.fallen)[:, k]
     out = {
-        "t": depth_t, "odom": pose2d(est.p_world_base[:, k], est.q_world_base[:, k]), "ranges": np.stack(ranges),
+        "t": depth_t,
+        "odom": pose2d(est.p_world_base[:, k], est.q_world_base[:, k]),
+        "ranges": np.stack(ranges),
         "bearings": bearings,
         # The scans are levelled along the base's heading: the laser sits at the camera's x y, yaw 0.
         "T_base_laser": np.array([T_base_camera[0, 3], T_base_camera[1, 3], 0.0]),
-        "valid": valid, "lo_twist": np.asarray(twist).reshape(n, -1, 3),
-        "lo_twist_cov": np.asarray(twist_cov).reshape(n, -1, 3, 3), "lo_valid": lo_valid,
-    }  # fmt: skip
+        "valid": valid,
+        "lo_twist": np.asarray(twist).reshape(n, -1, 3),
+        "lo_twist_cov": np.asarray(twist_cov).reshape(n, -1, 3, 3),
+        "lo_valid": lo_valid,
+    }
     if "gt_pose" in log:
         g = np.asarray(log["gt_pose"]) if fleet else np.asarray(log["gt_pose"])[None]
         out["gt"] = pose2d(g[:, k, :3], g[:, k, 3:])

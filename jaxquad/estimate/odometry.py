@@ -26,9 +26,7 @@ class Pose(eqx.Module):
     q_world_base: Float[Array, "*T 4"]  # w x y z
 
 
-def se3_exp(
-    v: Float[Array, "3"], phi: Float[Array, "3"]
-) -> tuple[Float[Array, "3"], Float[Array, "4"]]:
+def se3_exp(v: Float[Array, "3"], phi: Float[Array, "3"]) -> tuple[Float[Array, "3"], Float[Array, "4"]]:
     """Exponential of the twist (v, phi) (m, rad): the translation V(phi) v and quaternion exp(phi)."""
     T = lie.se3_exp(v, phi)
     return T.translation(), T.rotation().wxyz

@@ -46,9 +46,10 @@ from jaxquad.estimate import attitude as att
 from jaxquad.estimate import differentiate as dif
 from jaxquad.estimate.inputs import CONTACT_SOURCES, R_base_imu, RobotInputs, full_state, gaps, robot_inputs, torque_ok
 from jaxquad.estimate.odometry import Pose, odometry_step
-from jaxquad.kernels import ContactEstimate, ContactObserver, ObserverParams, rolling_contact, robust_body_twist
+from jaxquad.kernels import ContactEstimate, ContactObserver, ObserverParams, robust_body_twist, rolling_contact
 from jaxquad.kernels import floor as flr
 from jaxquad.kernels.lie import SO3, rotation_matrix
+
 
 class PipelineParams(eqx.Module):
     """Every tunable number of the pipeline (traced leaves)."""
@@ -198,9 +199,12 @@ def vertical_estimate(estimate: ContactEstimate, axes: str) -> ContactEstimate:
         return estimate
     z = lambda x: x[..., 2::3]  # noqa: E731
     return dataclasses.replace(
-        estimate, force_z=z(estimate.force_z), force_z_filtered=z(estimate.force_z_filtered),
-        contact=z(estimate.contact), contact_soft=z(estimate.contact_soft),
-    )  # fmt: skip
+        estimate,
+        force_z=z(estimate.force_z),
+        force_z_filtered=z(estimate.force_z_filtered),
+        contact=z(estimate.contact),
+        contact_soft=z(estimate.contact_soft),
+    )
 
 
 def _hold(ok, new, old):
@@ -212,9 +216,13 @@ def _observer_rows(robot, config: PipelineConfig) -> np.ndarray:
 
 
 def pipeline_init(
-    robot, config: PipelineConfig, params: PipelineParams, first: PipelineSample,
-    p0_world_base: Float[Array, "3"], yaw0: Float[Array, ""],
-) -> PipelineState:  # fmt: skip
+    robot,
+    config: PipelineConfig,
+    params: PipelineParams,
+    first: PipelineSample,
+    p0_world_base: Float[Array, "3"],
+    yaw0: Float[Array, ""],
+) -> PipelineState:
     """The state before the first sample `first` (which `pipeline_step` then processes with dt = 0):
     joints and attitude from it, position `p0_world_base` (m) and, without an attitude input, heading
     `yaw0` (rad)."""
@@ -327,10 +335,19 @@ def pipeline_step(
     n_floor = R_world_base[2]  # the world's up axis in base axes: the normal of a level floor
     p_foot, v_foot = rolling_contact(legs.p_base_foot, legs.v_base_foot, legs.omega_base_foot, radius, n_floor)
     rob = robust_body_twist(
-        p_foot, v_foot, gyro, weight, params.imu_weight, params.min_stance, params.robust_scale, 0.5,
-        params.sigma_prior, params.prior_dof, n_iter=config.robust_iters if config.robust != "none" else 0,
+        p_foot,
+        v_foot,
+        gyro,
+        weight,
+        params.imu_weight,
+        params.min_stance,
+        params.robust_scale,
+        0.5,
+        params.sigma_prior,
+        params.prior_dof,
+        n_iter=config.robust_iters if config.robust != "none" else 0,
         loss="huber" if config.robust == "none" else config.robust,
-    )  # fmt: skip
+    )
     tw = rob.twist
     tw_ok = tw.valid & tw.linear_observed
     v_base = jnp.where(tw_ok, tw.v_base, c.v_last)
@@ -390,9 +407,16 @@ def pipeline_step(
 def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs: RobotInputs) -> Estimate:
     """Run the pipeline over one robot's inputs (pure; jit and vmap at the call site)."""
     xs = PipelineSample(
-        dt=inputs.dt, q=inputs.q, qd=inputs.qd, tau=inputs.tau, gyro=inputs.gyro, acc=inputs.acc,
-        quat_wxyz=inputs.quat_wxyz, contact_weight=inputs.contact_weight, valid=inputs.valid,
-    )  # fmt: skip
+        dt=inputs.dt,
+        q=inputs.q,
+        qd=inputs.qd,
+        tau=inputs.tau,
+        gyro=inputs.gyro,
+        acc=inputs.acc,
+        quat_wxyz=inputs.quat_wxyz,
+        contact_weight=inputs.contact_weight,
+        valid=inputs.valid,
+    )
     first = jax.tree.map(lambda a: a[0], xs)
     state = pipeline_init(robot, config, params, first, inputs.p0_world_base, inputs.yaw0)
     _, out = jax.lax.scan(lambda c, x: pipeline_step(robot, config, params, c, x), state, xs)
@@ -406,7 +430,11 @@ def _compiled(robot, config: PipelineConfig, axes: tuple, mesh):
 
 
 def estimate_fleet(
-    robot, config: PipelineConfig, params: PipelineParams, inputs: RobotInputs, batched_params: bool = False,
+    robot,
+    config: PipelineConfig,
+    params: PipelineParams,
+    inputs: RobotInputs,
+    batched_params: bool = False,
     devices: int | None = None,
 ) -> Estimate:
     """`estimate_robot` over N robots (inputs with a leading axis N), jitted once per robot model

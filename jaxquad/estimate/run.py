@@ -32,8 +32,19 @@ import numpy as np
 from jaxquad.estimate import scores
 
 _FLAGS = ("bad_joints", "bad_imu", "bad_torque", "gap", "no_stance", "fallen")
-_FIELDS = ("p_world_base", "q_world_base", "v_base", "omega_base", "contact", "contact_soft", "force_z",
-           "force_z_filtered", "qd", "cov_v_base", "slip")  # fmt: skip
+_FIELDS = (
+    "p_world_base",
+    "q_world_base",
+    "v_base",
+    "omega_base",
+    "contact",
+    "contact_soft",
+    "force_z",
+    "force_z_filtered",
+    "qd",
+    "cov_v_base",
+    "slip",
+)
 SUMMARY_KIND = "jaxquad estimate"
 
 
@@ -53,8 +64,13 @@ def load_params(path: str | os.PathLike | None, n_feet: int = 4, contacts: str =
 
 
 def estimate_log(
-    log: Mapping, contacts: str = "truth", params=None, robot=None, odometry: dict | None = None, devices: int | None = None
-):  # fmt: skip
+    log: Mapping,
+    contacts: str = "truth",
+    params=None,
+    robot=None,
+    odometry: dict | None = None,
+    devices: int | None = None,
+):
     """Run the pipeline over a log (a dict, a loaded `.npz` or a `jaxquad.sim.FleetLog`); returns
     (robot, config, Estimate as NumPy with a leading robot axis). odometry: leg-odometry choices of
     `PipelineConfig` (rolling, robust, robust_iters, floor) to override; devices: how many devices
@@ -116,8 +132,15 @@ def trajectory_metrics(t, est, gt, valid) -> dict:
 
 
 def estimate_and_score(
-    log: Mapping, contacts: str = "truth", params=None, progress=None, band_height: int = 5,
-    range_min: float = 0.2, range_max: float = 8.0, source: str | None = None, odometry: dict | None = None,
+    log: Mapping,
+    contacts: str = "truth",
+    params=None,
+    progress=None,
+    band_height: int = 5,
+    range_min: float = 0.2,
+    range_max: float = 8.0,
+    source: str | None = None,
+    odometry: dict | None = None,
     devices: int | None = None,
 ) -> EstimateRun:
     """Estimate over `log`, slice its depth frames into scans, score against its ground truth.
@@ -140,10 +163,18 @@ def estimate_and_score(
     t = np.asarray(log["t"], np.float64)
     fleet = "fallen" in log
     n = out.p_world_base.shape[0]
-    summary = {"kind": SUMMARY_KIND, "log": source, "robot": robot.name, "contacts": contacts,
-               "config": dataclasses.asdict(config), "samples": int(t.size), "duration_s": float(t[-1] - t[0]),
-               "scans": {"band_height_px": band_height, "range_min_m": range_min, "range_max_m": range_max},
-               "params": json_ready(params), "robots": []}  # fmt: skip
+    summary = {
+        "kind": SUMMARY_KIND,
+        "log": source,
+        "robot": robot.name,
+        "contacts": contacts,
+        "config": dataclasses.asdict(config),
+        "samples": int(t.size),
+        "duration_s": float(t[-1] - t[0]),
+        "scans": {"band_height_px": band_height, "range_min_m": range_min, "range_max_m": range_max},
+        "params": json_ready(params),
+        "robots": [],
+    }
     if contacts in ("observer", "mixed"):
         summary["observer_params"] = observer_params_dict(params.observer)  # as a --params file holds them
     names, scans = [], [] if "depth" in log else None
@@ -155,15 +186,28 @@ def estimate_and_score(
             from jaxquad.estimate.scans import log_scans
 
             depth = np.asarray(log["depth"])[i] if fleet else np.asarray(log["depth"])
-            scans.append(log_scans(depth, np.asarray(log["depth_t"]), np.asarray(log["K"]), t, est["q_world_base"],
-                                   band_height, range_min, range_max))  # fmt: skip
+            scans.append(
+                log_scans(
+                    depth,
+                    np.asarray(log["depth_t"]),
+                    np.asarray(log["K"]),
+                    t,
+                    est["q_world_base"],
+                    band_height,
+                    range_min,
+                    range_max,
+                )
+            )
         log_i = {k: (np.asarray(v)[i] if fleet else v) for k, v in log.items() if k.startswith("gt_")}
         valid = ~flags["fallen"]
-        summary["robots"].append({
-            "name": names[-1], "flag_counts": {k: int(v.sum()) for k, v in flags.items()},
-            "fallen": bool(flags["fallen"].any()),
-            "scores": _scores_one(t, est, log_i, valid, float(params.observer.f_max)),
-        })  # fmt: skip
+        summary["robots"].append(
+            {
+                "name": names[-1],
+                "flag_counts": {k: int(v.sum()) for k, v in flags.items()},
+                "fallen": bool(flags["fallen"].any()),
+                "scores": _scores_one(t, est, log_i, valid, float(params.observer.f_max)),
+            }
+        )
         if progress is not None:
             progress(i + 1, n)
     depth_t = np.asarray(log["depth_t"]) if scans is not None else None
@@ -180,22 +224,37 @@ def write_run(run: EstimateRun, folder: str | os.PathLike) -> None:
     for i, name in enumerate(run.names):
         est = {k: getattr(out, k)[i] for k in _FIELDS}
         flags = {f"flag_{f}": getattr(out.flags, f)[i] for f in _FLAGS}
-        write_tum(folder / f"{name}.tum", TumTrajectory(run.t, est["p_world_base"], est["q_world_base"][:, [1, 2, 3, 0]]))
+        write_tum(
+            folder / f"{name}.tum", TumTrajectory(run.t, est["p_world_base"], est["q_world_base"][:, [1, 2, 3, 0]])
+        )
         with atomic_open(folder / f"{name}.npz") as f:
             np.savez(f, t=run.t, **est, **flags)
         if run.scans is not None:
             sc = run.scans[i]
             with atomic_open(folder / f"{name}_scans.npz") as f:
-                np.savez(f, depth_t=run.depth_t, **{k: np.asarray(getattr(sc, k)) for k in
-                                                    ("ranges_stabilized", "ranges_baseline", "bearings", "roll", "pitch")})  # fmt: skip
+                np.savez(
+                    f,
+                    depth_t=run.depth_t,
+                    **{
+                        k: np.asarray(getattr(sc, k))
+                        for k in ("ranges_stabilized", "ranges_baseline", "bearings", "roll", "pitch")
+                    },
+                )
     write_json(folder / "summary.json", run.summary)
 
 
 def run_estimate(
-    log, out_dir, contacts: str = "truth", params_path=None, progress=None,
-    band_height: int = 5, range_min: float = 0.2, range_max: float = 8.0, odometry: dict | None = None,
+    log,
+    out_dir,
+    contacts: str = "truth",
+    params_path=None,
+    progress=None,
+    band_height: int = 5,
+    range_min: float = 0.2,
+    range_max: float = 8.0,
+    odometry: dict | None = None,
     devices: int | None = None,
-) -> dict:  # fmt: skip
+) -> dict:
     """Estimate over `log` (a path to a `.npz`, or a log mapping such as a `jaxquad.sim.FleetLog`),
     write the output folder `out_dir` (checked first; replaced whole when complete, if it holds an
     earlier estimate), return the summary dict. The robots are split over `devices` devices (default
@@ -210,8 +269,9 @@ def run_estimate(
         source, log = str(log), load_log(log)
     robot = load(str(np.asarray(log["robot"])))
     params = load_params(params_path, len(robot.foot_names), contacts)
-    run = estimate_and_score(log, contacts, params, progress, band_height, range_min, range_max, source, odometry,
-                             devices)  # fmt: skip
+    run = estimate_and_score(
+        log, contacts, params, progress, band_height, range_min, range_max, source, odometry, devices
+    )
     if params_path is not None:
         run.summary["params_file"] = str(params_path)
     if parallel.is_main():

@@ -72,14 +72,24 @@ def log_scans(
     roll, pitch = roll_pitch(jnp.asarray(q_world_base[k], jnp.float32))
     intr = CameraIntrinsics(*(jnp.asarray(K[i, j], jnp.float32) for i, j in ((0, 0), (1, 1), (0, 2), (1, 2))))
     stab, base, bearings = _slice(
-        jnp.asarray(depth, jnp.float32), intr, roll, pitch, band_height,
-        jnp.asarray(range_min, jnp.float32), jnp.asarray(range_max, jnp.float32),
-    )  # fmt: skip
+        jnp.asarray(depth, jnp.float32),
+        intr,
+        roll,
+        pitch,
+        band_height,
+        jnp.asarray(range_min, jnp.float32),
+        jnp.asarray(range_max, jnp.float32),
+    )
     extra = {}
     if level:
         lev, bearings_level = _slice_level(
-            jnp.asarray(depth, jnp.float32), intr, roll, pitch, band_height,
-            jnp.asarray(range_min, jnp.float32), jnp.asarray(range_max, jnp.float32),
-        )  # fmt: skip
+            jnp.asarray(depth, jnp.float32),
+            intr,
+            roll,
+            pitch,
+            band_height,
+            jnp.asarray(range_min, jnp.float32),
+            jnp.asarray(range_max, jnp.float32),
+        )
         extra = {"ranges_level": lev, "bearings_level": bearings_level}
     return LogScans(ranges_stabilized=stab, ranges_baseline=base, bearings=bearings, roll=roll, pitch=pitch, **extra)

@@ -200,8 +200,12 @@ def odometry_drift(p_est, p_true, valid=None) -> dict:
     est, true = est[m], true[m]
     if est.shape[0] < 2:
         nan = float("nan")
-        return {"endpoint_drift_horizontal_pct": nan, "endpoint_drift_3d_pct": nan, "distance_m": 0.0,
-                "horizontal_distance_m": 0.0}  # fmt: skip
+        return {
+            "endpoint_drift_horizontal_pct": nan,
+            "endpoint_drift_3d_pct": nan,
+            "distance_m": 0.0,
+            "horizontal_distance_m": 0.0,
+        }
     err = (est[-1] - est[0]) - (true[-1] - true[0])
     step = np.diff(true, axis=0)
     dist3 = float(np.linalg.norm(step, axis=1).sum())

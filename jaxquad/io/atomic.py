@@ -15,7 +15,15 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
 
-__all__ = ["atomic_dir", "atomic_open", "atomic_path", "atomic_write_bytes", "atomic_write_text", "check_output_dir", "check_output_file"]
+__all__ = [
+    "atomic_dir",
+    "atomic_open",
+    "atomic_path",
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "check_output_dir",
+    "check_output_file",
+]
 
 
 def _umask_mode(base: int) -> int:

@@ -82,9 +82,15 @@ def validate_laser_log(log: LaserLog, where: str) -> None:
             object.__setattr__(log, k, np.asarray(v, np.float64))
     S, B, K = log.scan_t.shape[0], log.bearings.shape[0], log.odom_t.shape[0]
     shapes = dict(
-        scan_t=(S,), ranges=(S, B), bearings=(B,), odom_t=(K,), odom_xytheta=(K, 3),
-        scan_odom_xytheta=(S, 3), T_base_laser_xytheta=(3,), gt_xytheta=(S, 3),
-    )  # fmt: skip
+        scan_t=(S,),
+        ranges=(S, B),
+        bearings=(B,),
+        odom_t=(K,),
+        odom_xytheta=(K, 3),
+        scan_odom_xytheta=(S, 3),
+        T_base_laser_xytheta=(3,),
+        gt_xytheta=(S, 3),
+    )
     for k, shape in shapes.items():
         v = getattr(log, k)
         if v is None:

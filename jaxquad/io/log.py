@@ -44,10 +44,19 @@ SHARED = frozenset({"t", "robot", "joint_names", "depth_t", "K", "T_base_camera"
 _DEPTH_GROUP = ("depth", "depth_t", "K", "T_base_camera")
 # Per-robot array shapes after the leading robot axis; "T" and "nj" are resolved per log.
 _SHAPES: dict[str, tuple] = {
-    "q": ("T", "nj"), "qd": ("T", "nj"), "tau": ("T", "nj"), "gyro": ("T", 3), "acc": ("T", 3),
-    "quat_wxyz": ("T", 4), "foot_force": ("T", 4), "contact": ("T", 4),
-    "depth": ("F", "H", "W"), "gt_pose": ("T", 7), "gt_contact": ("T", 4), "gt_force": ("T", 4, 3),
-}  # fmt: skip
+    "q": ("T", "nj"),
+    "qd": ("T", "nj"),
+    "tau": ("T", "nj"),
+    "gyro": ("T", 3),
+    "acc": ("T", 3),
+    "quat_wxyz": ("T", 4),
+    "foot_force": ("T", 4),
+    "contact": ("T", 4),
+    "depth": ("F", "H", "W"),
+    "gt_pose": ("T", 7),
+    "gt_contact": ("T", 4),
+    "gt_force": ("T", 4, 3),
+}
 _MAX_GYRO = 35.0  # rad/s (2000 deg/s, the usual full scale); larger values are deg/s
 _MAX_JOINT = 4.0 * np.pi  # rad; larger values are degrees
 _MAX_DEPTH = 100.0  # m; larger values are millimetres

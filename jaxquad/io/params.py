@@ -22,9 +22,13 @@ OBSERVER_KEYS = ("mode", "bandwidth", "alpha", "threshold_on", "threshold_off", 
 _PER_FOOT = ("alpha", "threshold_on", "threshold_off")
 # key -> (lowest allowed, whether the lowest is allowed, highest allowed)
 _RANGES = {
-    "bandwidth": (0.0, False, np.inf), "alpha": (0.0, False, 1.0), "threshold_on": (0.0, True, np.inf),
-    "threshold_off": (0.0, True, np.inf), "f_max": (0.0, False, np.inf), "sharpness": (0.0, False, np.inf),
-}  # fmt: skip
+    "bandwidth": (0.0, False, np.inf),
+    "alpha": (0.0, False, 1.0),
+    "threshold_on": (0.0, True, np.inf),
+    "threshold_off": (0.0, True, np.inf),
+    "f_max": (0.0, False, np.inf),
+    "sharpness": (0.0, False, np.inf),
+}
 
 
 def observer_params_dict(params) -> dict:
@@ -34,10 +38,14 @@ def observer_params_dict(params) -> dict:
     scalar = lambda x: json_ready(np.asarray(x).reshape(()))  # noqa: E731
     vector = lambda x: json_ready(np.asarray(x).reshape(-1))  # noqa: E731
     return {
-        "mode": params.mode, "bandwidth": scalar(params.bandwidth), "alpha": vector(params.alpha),
-        "threshold_on": vector(params.threshold_on), "threshold_off": vector(params.threshold_off),
-        "f_max": scalar(params.f_max), "sharpness": scalar(params.sharpness),
-    }  # fmt: skip
+        "mode": params.mode,
+        "bandwidth": scalar(params.bandwidth),
+        "alpha": vector(params.alpha),
+        "threshold_on": vector(params.threshold_on),
+        "threshold_off": vector(params.threshold_off),
+        "f_max": scalar(params.f_max),
+        "sharpness": scalar(params.sharpness),
+    }
 
 
 def write_observer_params(path: str | os.PathLike, params, header: str = "") -> Path:
@@ -60,7 +68,9 @@ def _number_array(path: Path, key: str, value, n_feet: int) -> np.ndarray:
     try:
         a = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError(f"params file {path}: {key} must be a number{' or a list of numbers' if key in _PER_FOOT else ''}, got {value!r}") from None
+        raise ValueError(
+            f"params file {path}: {key} must be a number{' or a list of numbers' if key in _PER_FOOT else ''}, got {value!r}"
+        ) from None
     if key in _PER_FOOT:
         if a.ndim > 1 or (a.ndim == 1 and a.size not in (1, n_feet)):
             raise ValueError(f"params file {path}: {key} needs one number or {n_feet} (one per foot), got {a.size}")

@@ -84,8 +84,12 @@ def _parse_fast(lines: list[str]) -> np.ndarray | None:
         mat = np.loadtxt(data, dtype=np.float64, comments=None, ndmin=2)
     except ValueError:
         return None
-    ok = (mat.shape[1] == 8 and np.all(np.isfinite(mat)) and np.all(np.any(mat[:, 4:] != 0, axis=1))
-          and np.all(np.diff(mat[:, 0]) > 0))
+    ok = (
+        mat.shape[1] == 8
+        and np.all(np.isfinite(mat))
+        and np.all(np.any(mat[:, 4:] != 0, axis=1))
+        and np.all(np.diff(mat[:, 0]) > 0)
+    )
     return mat if ok else None
 
 
@@ -123,8 +127,11 @@ def read_tum(path: str | os.PathLike) -> TumTrajectory:
 def write_tum(path: str | os.PathLike, traj: TumTrajectory, header: str | None = None) -> None:
     """Write `traj` as a TUM file, atomically; `header` lines are written as `#` comments."""
     path = Path(path)
-    if not (np.all(np.isfinite(traj.t_s)) and np.all(np.isfinite(traj.p_world_body))
-            and np.all(np.isfinite(traj.q_world_body_xyzw))):
+    if not (
+        np.all(np.isfinite(traj.t_s))
+        and np.all(np.isfinite(traj.p_world_body))
+        and np.all(np.isfinite(traj.q_world_body_xyzw))
+    ):
         raise ValueError(f"{path}: refusing to write a trajectory with NaN or infinite values")
     if np.any(np.diff(traj.t_s) <= 0):
         raise ValueError(f"{path}: timestamps must increase strictly")

@@ -5,6 +5,12 @@ from jaxquad.localize.params import DEFAULTS_FILE, LocalizeParams, load_params
 from jaxquad.localize.run import CONVERGED_M, field_of_map, localize_log, localize_scans, run_localize
 
 __all__ = [
-    "CONVERGED_M", "DEFAULTS_FILE", "LocalizeParams", "field_of_map", "load_params", "localize_log", "localize_scans",
+    "CONVERGED_M",
+    "DEFAULTS_FILE",
+    "LocalizeParams",
+    "field_of_map",
+    "load_params",
+    "localize_log",
+    "localize_scans",
     "run_localize",
-]  # fmt: skip
+]

@@ -12,8 +12,9 @@ import argparse
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", help="robot log (.npz, single robot or fleet) with depth images")
     parser.add_argument("--map", required=True, help="occupancy map YAML (PGM + YAML, map_server format, yaw 0)")
-    parser.add_argument("--out", required=True,
-                        help="output folder (created; replaced only if it holds an earlier localization)")  # fmt: skip
+    parser.add_argument(
+        "--out", required=True, help="output folder (created; replaced only if it holds an earlier localization)"
+    )
     start = parser.add_mutually_exclusive_group(required=True)
     start.add_argument(
         "--initial-pose",
@@ -70,8 +71,18 @@ def run(args: argparse.Namespace) -> int:
     initial = "global" if args.global_ else "gt" if args.initial_pose_gt else tuple(args.initial_pose)
     # run_localize checks the output folder, parameters, map and log before its first progress report.
     with progress_bar("localize", "scan") as progress:
-        summary = run_localize(args.log, args.map, args.out, initial, args.params, args.particles, args.contacts,
-                               args.band_height, progress, args.observer_params)  # fmt: skip
+        summary = run_localize(
+            args.log,
+            args.map,
+            args.out,
+            initial,
+            args.params,
+            args.particles,
+            args.contacts,
+            args.band_height,
+            progress,
+            args.observer_params,
+        )
     print(to_json({"params_file": summary["params_file"], "params": summary["params"]}))
     brief = {"robots": len(summary["robots"]), "out": str(args.out)}
     errs = [r["scores"] for r in summary["robots"] if "scores" in r]

@@ -45,13 +45,21 @@ class LocalizeParams:
         from jaxquad.kernels import AmclParams
 
         return AmclParams.paper(
-            n_beams=self.max_beams, alpha=[self.alpha1, self.alpha2, self.alpha3, self.alpha4, self.alpha5],
-            z_hit=self.z_hit, z_rand=self.z_rand, sigma_hit=self.sigma_hit, range_min=self.laser_min_range,
-            range_max=self.laser_max_range, update_min_d=self.update_min_d, update_min_a=self.update_min_a,
-            alpha_slow=self.recovery_alpha_slow, alpha_fast=self.recovery_alpha_fast,
+            n_beams=self.max_beams,
+            alpha=[self.alpha1, self.alpha2, self.alpha3, self.alpha4, self.alpha5],
+            z_hit=self.z_hit,
+            z_rand=self.z_rand,
+            sigma_hit=self.sigma_hit,
+            range_min=self.laser_min_range,
+            range_max=self.laser_max_range,
+            update_min_d=self.update_min_d,
+            update_min_a=self.update_min_a,
+            alpha_slow=self.recovery_alpha_slow,
+            alpha_fast=self.recovery_alpha_fast,
             resample_ratio=self.resample_ratio,
-            init_std=[self.initial_std_xy, self.initial_std_xy, self.initial_std_yaw], T_base_laser=list(T_base_laser),
-        )  # fmt: skip
+            init_std=[self.initial_std_xy, self.initial_std_xy, self.initial_std_yaw],
+            T_base_laser=list(T_base_laser),
+        )
 
 
 def _read(path: Path) -> dict:

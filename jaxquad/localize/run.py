@@ -22,8 +22,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxquad.kernels import AmclInputs, AmclParams, LikelihoodField, amcl_init, amcl_step, likelihood_field
 from jaxquad.estimate.laser import laser_inputs
+from jaxquad.kernels import AmclInputs, AmclParams, LikelihoodField, amcl_init, amcl_step, likelihood_field
 from jaxquad.kernels.lie import SE2
 from jaxquad.localize.params import DEFAULTS_FILE, LocalizeParams, load_params
 
@@ -100,10 +100,12 @@ def _scores(t: np.ndarray, pose: np.ndarray, gt: np.ndarray, valid: np.ndarray, 
     yaw = np.abs((pose[:, 2] - gt[:, 2] + np.pi) % (2 * np.pi) - np.pi)
     e, y = err[valid], yaw[valid]
     res = {
-        "position_error_median_m": float(np.median(e)), "position_error_p99_m": float(np.percentile(e, 99)),
-        "position_error_rmse_m": float(np.sqrt(np.mean(e**2))), "position_error_max_m": float(e.max()),
+        "position_error_median_m": float(np.median(e)),
+        "position_error_p99_m": float(np.percentile(e, 99)),
+        "position_error_rmse_m": float(np.sqrt(np.mean(e**2))),
+        "position_error_max_m": float(e.max()),
         "heading_error_median_rad": float(np.median(y)),
-    }  # fmt: skip
+    }
     if global_:
         above = np.flatnonzero(~(err < CONVERGED_M) & valid)
         first = 0 if above.size == 0 else above[-1] + 1
@@ -117,14 +119,28 @@ def log_inputs(
 ) -> dict:
     """What the filter reads from a loaded log (`jaxquad.estimate.laser.laser_inputs` with the
     stabilized scans cut to the filter's laser range limits); `progress(0, F)` once the log is checked."""
-    return laser_inputs(log, "stabilized", contacts, band_height, lp.laser_min_range, lp.laser_max_range,
-                        observer_params, progress=progress)  # fmt: skip
+    return laser_inputs(
+        log,
+        "stabilized",
+        contacts,
+        band_height,
+        lp.laser_min_range,
+        lp.laser_max_range,
+        observer_params,
+        progress=progress,
+    )
 
 
 def localize_log(
-    log: dict, occ, lp: LocalizeParams, initial: str | tuple[float, float, float] = "global",
-    contacts: str = "mixed", band_height: int = 5, progress=None, observer_params=None,
-) -> list[dict]:  # fmt: skip
+    log: dict,
+    occ,
+    lp: LocalizeParams,
+    initial: str | tuple[float, float, float] = "global",
+    contacts: str = "mixed",
+    band_height: int = 5,
+    progress=None,
+    observer_params=None,
+) -> list[dict]:
     """Localize every robot of a loaded log on `occ` (an OccupancyMap). `initial`: "global", "gt"
     (the log's ground truth at the first frame) or an (x, y, theta) pose. One dict per robot."""
     if initial == "gt" and "gt_pose" not in log:
@@ -140,14 +156,22 @@ def localize_log(
     else:
         init = np.broadcast_to(np.asarray(initial, np.float64), (n, 3))
     params = lp.amcl(T_base_laser=tuple(float(v) for v in x["T_base_laser"]))
-    out = localize_scans(params, field, x["odom"], x["ranges"], x["bearings"], lp.max_particles, init, lp.seed,
-                         progress)  # fmt: skip
+    out = localize_scans(
+        params, field, x["odom"], x["ranges"], x["bearings"], lp.max_particles, init, lp.seed, progress
+    )
     fleet = "fallen" in log
     robots = []
     for i in range(n):
-        r = {"name": f"robot_{i:03d}" if fleet else "robot", "t": x["t"], "pose": out.pose[i], "cov": out.cov[i],
-             "n_eff": out.n_eff[i], "updated": out.updated[i], "resampled": out.resampled[i],
-             "p_random": out.p_random[i]}  # fmt: skip
+        r = {
+            "name": f"robot_{i:03d}" if fleet else "robot",
+            "t": x["t"],
+            "pose": out.pose[i],
+            "cov": out.cov[i],
+            "n_eff": out.n_eff[i],
+            "updated": out.updated[i],
+            "resampled": out.resampled[i],
+            "p_random": out.p_random[i],
+        }
         if gt is not None:
             r["gt_pose"] = gt[i]
             r["error_xy"] = np.hypot(*(out.pose[i, :, :2] - gt[i, :, :2]).T)
@@ -161,9 +185,17 @@ def localize_log(
 
 
 def run_localize(
-    log_path, map_path, out_dir, initial="global", params_path=None, particles: int | None = None,
-    contacts: str = "mixed", band_height: int = 5, progress=None, observer_params=None,
-) -> dict:  # fmt: skip
+    log_path,
+    map_path,
+    out_dir,
+    initial="global",
+    params_path=None,
+    particles: int | None = None,
+    contacts: str = "mixed",
+    band_height: int = 5,
+    progress=None,
+    observer_params=None,
+) -> dict:
     """Localize the robots of the log at `log_path` on the map at `map_path`; write `out_dir`."""
     from jaxquad.io import TumTrajectory, load_log, load_map, write_json, write_tum
     from jaxquad.io.atomic import atomic_dir, atomic_open, check_output_dir
@@ -174,12 +206,17 @@ def run_localize(
     log = load_log(log_path)
     robots = localize_log(log, occ, lp, initial, contacts, band_height, progress, observer_params)
     summary = {
-        "kind": SUMMARY_KIND, "log": str(log_path), "map": str(map_path),
-        "params_file": str(params_path or DEFAULTS_FILE), "params": dataclasses.asdict(lp),
-        "initial": initial if isinstance(initial, str) else list(initial), "contacts": contacts,
-        "observer_params": None if observer_params is None else str(observer_params), "band_height_px": band_height,
+        "kind": SUMMARY_KIND,
+        "log": str(log_path),
+        "map": str(map_path),
+        "params_file": str(params_path or DEFAULTS_FILE),
+        "params": dataclasses.asdict(lp),
+        "initial": initial if isinstance(initial, str) else list(initial),
+        "contacts": contacts,
+        "observer_params": None if observer_params is None else str(observer_params),
+        "band_height_px": band_height,
         "robots": [],
-    }  # fmt: skip
+    }
     with atomic_dir(out_dir) as tmp:
         for r in robots:
             pose = r["pose"]
@@ -189,15 +226,27 @@ def run_localize(
             with atomic_open(tmp / f"{r['name']}.npz") as f:
                 np.savez(f, **{k: v for k, v in r.items() if k not in ("name", "scores")})
             std = np.sqrt(np.clip(np.diagonal(r["cov"][-1]), 0, None))
-            summary["robots"].append({
-                "name": r["name"], "scans": int(len(pose)), "updates": int(r["updated"].sum()),
-                "resamples": int(r["resampled"].sum()), "final_pose": pose[-1].tolist(),
-                "final_std": std.tolist(), **({"scores": r["scores"]} if "scores" in r else {}),
-            })  # fmt: skip
+            summary["robots"].append(
+                {
+                    "name": r["name"],
+                    "scans": int(len(pose)),
+                    "updates": int(r["updated"].sum()),
+                    "resamples": int(r["resampled"].sum()),
+                    "final_pose": pose[-1].tolist(),
+                    "final_std": std.tolist(),
+                    **({"scores": r["scores"]} if "scores" in r else {}),
+                }
+            )
         write_json(tmp / "summary.json", summary)
     return summary
 
 
 __all__ = [
-    "CONVERGED_M", "SUMMARY_KIND", "field_of_map", "localize_log", "log_inputs", "localize_scans", "run_localize",
-]  # fmt: skip
+    "CONVERGED_M",
+    "SUMMARY_KIND",
+    "field_of_map",
+    "localize_log",
+    "log_inputs",
+    "localize_scans",
+    "run_localize",
+]

@@ -19,9 +19,7 @@ class Alignment(eqx.Module):
     ok: Bool[Array, ""]
 
 
-def umeyama(
-    p_est: Float[Array, "N 3"], p_ref: Float[Array, "N 3"], with_scale: bool
-) -> Alignment:
+def umeyama(p_est: Float[Array, "N 3"], p_ref: Float[Array, "N 3"], with_scale: bool) -> Alignment:
     """Least-squares similarity (Umeyama 1991, eqs. 34-43) mapping p_est onto p_ref.
 
     Degenerate when fewer than 2 singular values of the cross-covariance exceed eps (evo's rank
@@ -36,7 +34,7 @@ def umeyama(
     cov = d_ref.T @ d_est / n  # eq. 38, Sigma_xy = mean (y - mu_y)(x - mu_x)^T
     U, D, Vt = jnp.linalg.svd(cov)
     eps = jnp.finfo(cov.dtype).eps * jnp.maximum(1.0, D[0])
-    ok = (jnp.sum(D > eps) >= 2) & (n >= 3) & (var_est > 0)
+    ok = (jnp.sum(eps < D) >= 2) & (n >= 3) & (var_est > 0)
     # eq. 43: reflect the last axis when U V^T would be a reflection.
     sign = jnp.where(jnp.linalg.det(U) * jnp.linalg.det(Vt) < 0, -1.0, 1.0)
     S = jnp.array([1.0, 1.0, sign], dtype=cov.dtype)

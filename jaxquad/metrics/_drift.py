@@ -46,11 +46,7 @@ class Drift(eqx.Module):
     def to_dict(self) -> dict:
         """{"drift_pct": {...}, "drift_deg_per_m": {...}}, each with mean, lengths_m, per_length,
         n_segments, n_segments_per_length, step_poses (lists for batched results; NaN stays NaN)."""
-        lengths = (
-            np.asarray(self.lengths_m)
-            .reshape(-1, np.shape(self.lengths_m)[-1])[0]
-            .tolist()
-        )
+        lengths = np.asarray(self.lengths_m).reshape(-1, np.shape(self.lengths_m)[-1])[0].tolist()
         common = {
             "lengths_m": lengths,
             "n_segments": np.asarray(self.n_segments).tolist(),
@@ -71,9 +67,7 @@ class Drift(eqx.Module):
         }
 
 
-def segment_pairs(
-    dist_ref: Float[Array, "N"], length_m: Float[Array, ""], step: int
-) -> Pairs:
+def segment_pairs(dist_ref: Float[Array, "N"], length_m: Float[Array, ""], step: int) -> Pairs:
     """Segments (i, j) for starts i = 0, step, ...: j is the first index with dist_ref[j] - dist_ref[i]
     > length_m (dist_ref: non-decreasing path length from pose 0). Starts with no such j are masked."""
     n = dist_ref.shape[0]
@@ -94,9 +88,7 @@ def segment_drift(
     """KITTI segment drift of an associated estimate (pose k belongs to reference pose k); lengths are
     traced, step (poses between segment starts) is static. Segment lengths walk the reference path."""
     lengths = jnp.asarray(lengths_m, p_ref.dtype)
-    dist = jnp.concatenate(
-        [jnp.zeros(1, p_ref.dtype), jnp.cumsum(_step_lengths(p_ref))]
-    )
+    dist = jnp.concatenate([jnp.zeros(1, p_ref.dtype), jnp.cumsum(_step_lengths(p_ref))])
     pairs = jax.vmap(lambda L: segment_pairs(dist, L, step))(lengths)
     err = jax.vmap(lambda pr: rpe(p_ref, R_ref, p_est, R_est, pr))(pairs)
     t_pct = 100.0 * err.translation_m / lengths[:, None]
@@ -107,9 +99,7 @@ def segment_drift(
 
     def mean(x, count, axis):
         total = jnp.sum(jnp.where(m, x, 0.0), axis=axis)
-        return jnp.where(
-            count > 0, total / jnp.maximum(count, 1).astype(x.dtype), jnp.nan
-        )
+        return jnp.where(count > 0, total / jnp.maximum(count, 1).astype(x.dtype), jnp.nan)
 
     return Drift(
         lengths_m=lengths,
@@ -129,9 +119,7 @@ def check_drift_options(lengths_m: Sequence[float], step: int) -> np.ndarray:
     if lengths.ndim != 1 or lengths.size == 0:
         raise ValueError("give at least one drift segment length")
     if not np.all(np.isfinite(lengths)) or np.any(lengths <= 0):
-        raise ValueError(
-            f"drift segment lengths must be positive and finite metres, got {lengths.tolist()}"
-        )
+        raise ValueError(f"drift segment lengths must be positive and finite metres, got {lengths.tolist()}")
     if int(step) != step or step < 1:
         raise ValueError(f"drift step must be an integer >= 1 pose, got {step}")
     return lengths
@@ -161,24 +149,16 @@ def evaluate_drift(
     arrays = [np.asarray(a, np.float64) for a in (p_ref, q_ref_xyzw, p_est, q_est_xyzw)]
     n = arrays[0].shape[0] if arrays[0].ndim == 2 else None
     if [a.shape for a in arrays] != [(n, 3), (n, 4), (n, 3), (n, 4)] or n is None:
-        raise ValueError(
-            f"drift needs (N, 3), (N, 4) arrays twice; got {[a.shape for a in arrays]}"
-        )
-    for name, a in zip(("reference positions", "reference quaternions", "estimate positions",
-                        "estimate quaternions"), arrays):  # fmt: skip
+        raise ValueError(f"drift needs (N, 3), (N, 4) arrays twice; got {[a.shape for a in arrays]}")
+    for name, a in zip(
+        ("reference positions", "reference quaternions", "estimate positions", "estimate quaternions"), arrays
+    ):
         if not np.all(np.isfinite(a)):
             raise ValueError(f"drift: {name} have NaN or infinite values")
         if a.shape[1] == 4 and np.any(np.all(a == 0, axis=1)):
             raise ValueError(f"drift: {name} include a zero quaternion")
-    if (
-        n == 0
-    ):  # no pose, no segment: one identity pose gives that answer without empty gathers
-        arrays = [
-            np.eye(4)[[3], : a.shape[1]] if a.shape[1] == 4 else np.zeros((1, 3))
-            for a in arrays
-        ]
+    if n == 0:  # no pose, no segment: one identity pose gives that answer without empty gathers
+        arrays = [np.eye(4)[[3], : a.shape[1]] if a.shape[1] == 4 else np.zeros((1, 3)) for a in arrays]
     with jax.enable_x64(True):
-        out = _single(int(step))(
-            *(jnp.asarray(a) for a in arrays), jnp.asarray(lengths)
-        )
+        out = _single(int(step))(*(jnp.asarray(a) for a in arrays), jnp.asarray(lengths))
         return jax.tree.map(np.asarray, out)

@@ -18,7 +18,8 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from jaxquad.io.tum import TumTrajectory
-from jaxquad.metrics._align import ALIGN_MODES, align as align_poses
+from jaxquad.metrics._align import ALIGN_MODES
+from jaxquad.metrics._align import align as align_poses
 from jaxquad.metrics._ape import PoseErrors, ape
 from jaxquad.metrics._associate import associate
 from jaxquad.metrics._drift import DRIFT_LENGTHS_M, DRIFT_STEP, check_drift_options, segment_drift
@@ -119,22 +120,34 @@ def _check_options(align: str, deltas: Sequence[float], delta_unit: str) -> np.n
 
 @functools.cache
 def _single(align: str, delta_unit: str, all_pairs: bool, rel_tol: float, drift_step: int = DRIFT_STEP):
-    return jax.jit(functools.partial(
-        evaluate_poses, align=align, delta_unit=delta_unit, all_pairs=all_pairs, rel_tol=rel_tol,
-        drift_step=drift_step,
-    ))
+    return jax.jit(
+        functools.partial(
+            evaluate_poses,
+            align=align,
+            delta_unit=delta_unit,
+            all_pairs=all_pairs,
+            rel_tol=rel_tol,
+            drift_step=drift_step,
+        )
+    )
 
 
 @functools.cache
 def _batched(align: str, delta_unit: str, all_pairs: bool, rel_tol: float, drift_step: int = DRIFT_STEP):
     one = functools.partial(
-        evaluate_poses, align=align, delta_unit=delta_unit, all_pairs=all_pairs, rel_tol=rel_tol,
+        evaluate_poses,
+        align=align,
+        delta_unit=delta_unit,
+        all_pairs=all_pairs,
+        rel_tol=rel_tol,
         drift_step=drift_step,
     )
     # Only the statistics leave the jitted function; per-pose arrays are dropped inside it.
-    return jax.jit(jax.vmap(
-        lambda pr, qr, pe, qe, d, lengths: one(pr, qr, pe, qe, d, lengths)[0], in_axes=(0, 0, 0, 0, None, None)
-    ))
+    return jax.jit(
+        jax.vmap(
+            lambda pr, qr, pe, qe, d, lengths: one(pr, qr, pe, qe, d, lengths)[0], in_axes=(0, 0, 0, 0, None, None)
+        )
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -194,15 +207,13 @@ def evaluate(
         res, track = jax.tree.map(np.asarray, (res, track))
     if not res.ok_align:
         raise ValueError(
-            f"{align} alignment is degenerate: the {n} associated estimate positions are (nearly) "
-            "collinear or constant"
+            f"{align} alignment is degenerate: the {n} associated estimate positions are (nearly) collinear or constant"
         )
     for k in np.flatnonzero(~res.ok_rpe):
         unit = "m" if delta_unit == "m" else "frames"
         length = float(np.sum(np.linalg.norm(np.diff(track.p_est_aligned, axis=0), axis=1)))
         raise ValueError(
-            f"RPE delta {d[k]:g} {unit} gives no pose pair (aligned estimate: {n} poses, "
-            f"{length:.3f} m path)"
+            f"RPE delta {d[k]:g} {unit} gives no pose pair (aligned estimate: {n} poses, {length:.3f} m path)"
         )
     return Evaluation(res, est_a.t_s, ref_a.p_world_body, track.p_est_aligned, track.ape.translation_m)
 
@@ -233,4 +244,3 @@ def evaluate_batch(
     fn = _batched(align, delta_unit, bool(all_pairs), float(rel_tol), int(drift_step))
     arrays = [jnp.asarray(a) for a in (p_ref, q_ref_xyzw, p_est, q_est_xyzw)]
     return fn(*arrays, jnp.asarray(d, arrays[0].dtype), jnp.asarray(lengths, arrays[0].dtype))
-

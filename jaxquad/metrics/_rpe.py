@@ -13,6 +13,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from jaxquad.metrics._ape import PoseErrors, pose_errors
 
+
 class Pairs(eqx.Module):
     """Index pairs (i, j), i < j, in static slots (N - 1 for RPE); slots with mask False hold (0, 0)."""
 
@@ -20,9 +21,11 @@ class Pairs(eqx.Module):
     j: Int[Array, "M"]
     mask: Bool[Array, "M"]
 
+
 def _step_lengths(p: Float[Array, "N 3"]) -> Float[Array, "N-1"]:
     d = p[1:] - p[:-1]
     return jnp.sqrt(jnp.sum(d * d, axis=-1))
+
 
 def pairs_by_path(p: Float[Array, "N 3"], delta_m: Float[Array, ""]) -> Pairs:
     """Consecutive pairs by travelled distance (evo's rule): walk the path accumulating step lengths;
@@ -43,9 +46,8 @@ def pairs_by_path(p: Float[Array, "N 3"], delta_m: Float[Array, ""]) -> Pairs:
     _, (i, j, mask) = lax.scan(walk, init, (steps, idx))
     return Pairs(i, j, mask)
 
-def pairs_by_path_all(
-    p: Float[Array, "N 3"], delta_m: Float[Array, ""], rel_tol: float = 0.1
-) -> Pairs:
+
+def pairs_by_path_all(p: Float[Array, "N 3"], delta_m: Float[Array, ""], rel_tol: float = 0.1) -> Pairs:
     """All-pairs mode (evo's rule): for every start i, the first later index j whose travelled
     distance from i is nearest to delta_m, kept if within rel_tol * delta_m."""
     n = p.shape[0]
@@ -63,6 +65,7 @@ def pairs_by_path_all(
     mask = gap(j) <= rel_tol * delta_m
     return Pairs(jnp.where(mask, i, 0), jnp.where(mask, j, 0), mask)
 
+
 def pairs_by_frames(n: int, delta: Int[Array, ""], all_pairs: bool = False) -> Pairs:
     """Pairs delta indices apart: (0, d), (d, 2d), ... or, with all_pairs, (i, i + d) for every i."""
     m = jnp.arange(n - 1, dtype=delta.dtype)
@@ -70,6 +73,7 @@ def pairs_by_frames(n: int, delta: Int[Array, ""], all_pairs: bool = False) -> P
     j = i + delta
     mask = (j < n) & (delta >= 1)
     return Pairs(jnp.where(mask, i, 0), jnp.where(mask, j, 0), mask)
+
 
 def rpe(
     p_ref: Float[Array, "N 3"],
@@ -89,6 +93,7 @@ def rpe(
     R_p, t_p = relative(p_est, R_est)
     R_q_T = jnp.swapaxes(R_q, -1, -2)
     return pose_errors(R_q_T @ R_p, jnp.einsum("mij,mj->mi", R_q_T, t_p - t_q))
+
 
 def pairs_for(p_est: Float[Array, "N 3"], delta, unit: str, all_pairs: bool, rel_tol: float = 0.1) -> Pairs:
     """Pairs for one delta in `unit` ("m" travelled metres along p_est, or "frames")."""

@@ -14,11 +14,13 @@ def rotation_from_quat_xyzw(q_xyzw: Float[Array, "4"]) -> Float[Array, "3 3"]:
     xx, yy, zz = s * x * x, s * y * y, s * z * z
     xy, xz, yz = s * x * y, s * x * z, s * y * z
     wx, wy, wz = s * w * x, s * w * y, s * w * z
-    return jnp.array([
-        [1.0 - yy - zz, xy - wz, xz + wy],
-        [xy + wz, 1.0 - xx - zz, yz - wx],
-        [xz - wy, yz + wx, 1.0 - xx - yy],
-    ])
+    return jnp.array(
+        [
+            [1.0 - yy - zz, xy - wz, xz + wy],
+            [xy + wz, 1.0 - xx - zz, yz - wx],
+            [xz - wy, yz + wx, 1.0 - xx - yy],
+        ]
+    )
 
 
 def rotation_angle(R: Float[Array, "3 3"]) -> Float[Array, ""]:

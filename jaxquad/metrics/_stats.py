@@ -21,10 +21,7 @@ class Stats(eqx.Module):
 
     def to_dict(self) -> dict:
         """Python floats (lists for batched results)."""
-        return {
-            k: np.asarray(getattr(self, k)).tolist()
-            for k in ("rmse", "mean", "median", "std", "min", "max")
-        }
+        return {k: np.asarray(getattr(self, k)).tolist() for k in ("rmse", "mean", "median", "std", "min", "max")}
 
 
 def statistics(x: Float[Array, "M"], mask: Bool[Array, "M"] | None = None) -> Stats:

@@ -11,22 +11,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("ref", help="reference trajectory (TUM: timestamp tx ty tz qx qy qz qw)")
     parser.add_argument("est", help="estimated trajectory (TUM)")
     parser.add_argument(
-        "--align", default="se3", choices=("se3", "sim3", "scale", "origin", "none"),
+        "--align",
+        default="se3",
+        choices=("se3", "sim3", "scale", "origin", "none"),
         help="alignment of the estimate to the reference (default: se3 Umeyama)",
     )
     parser.add_argument(
-        "--delta", type=float, nargs="+", default=[2.0, 5.0, 10.0], metavar="D",
+        "--delta",
+        type=float,
+        nargs="+",
+        default=[2.0, 5.0, 10.0],
+        metavar="D",
         help="RPE deltas (default: 2 5 10), in travelled metres unless --delta-unit frames",
     )
     parser.add_argument("--delta-unit", default="m", choices=("m", "frames"), help="unit of --delta (default: m)")
-    parser.add_argument("--all-pairs", action="store_true",
-                        help="RPE over all pairs instead of consecutive ones (default: consecutive)")  # fmt: skip
     parser.add_argument(
-        "--max-diff", type=float, default=0.01, metavar="S",
+        "--all-pairs", action="store_true", help="RPE over all pairs instead of consecutive ones (default: consecutive)"
+    )
+    parser.add_argument(
+        "--max-diff",
+        type=float,
+        default=0.01,
+        metavar="S",
         help="max. time difference in seconds when associating stamps (default: 0.01)",
     )
     parser.add_argument(
-        "--drift-length", type=float, nargs="+", default=[2.0, 5.0, 10.0], metavar="L",
+        "--drift-length",
+        type=float,
+        nargs="+",
+        default=[2.0, 5.0, 10.0],
+        metavar="L",
         help="segment lengths of the KITTI drift, metres of reference path (default: 2 5 10). drift_pct is "
         "|t((gt_i^-1 gt_j)^-1 (est_i^-1 est_j))| / L in %%, drift_deg_per_m its rotation angle / L, with j the "
         "first pose whose reference path from i exceeds L, averaged over every segment of every length. Uses "
@@ -34,11 +48,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "the reference path is shorter than L",
     )
     parser.add_argument(
-        "--drift-step", type=int, default=10, metavar="N",
+        "--drift-step",
+        type=int,
+        default=10,
+        metavar="N",
         help="poses between segment starts of the drift (default: 10, as KITTI)",
     )
     parser.add_argument(
-        "--json", action="store_true",
+        "--json",
+        action="store_true",
         help="print one JSON object (NaN written as null): ate, are, are_deg, ape, ape_rotation_part, rpe_<D>, "
         "drift_pct and drift_deg_per_m (mean, per_length, lengths_m, n_segments, n_segments_per_length, "
         "step_poses), n_pairs, alignment, ok",
@@ -61,9 +79,11 @@ def _table(d: dict) -> str:
     t, r = d["drift_pct"], d["drift_deg_per_m"]
     fmt = lambda x: "n/a" if x is None or math.isnan(x) else f"{x:.4g}"
     per = lambda s: ", ".join(f"{length:g} m: {fmt(v)}" for length, v in zip(s["lengths_m"], s["per_length"]))
-    lines.append(f"drift (KITTI, unaligned) {fmt(t['mean'])} % ({per(t)}), {fmt(r['mean'])} deg/m ({per(r)}); "
-                 f"{t['n_segments']} segments ({', '.join(map(str, t['n_segments_per_length']))}), "
-                 f"starts every {t['step_poses']} poses")
+    lines.append(
+        f"drift (KITTI, unaligned) {fmt(t['mean'])} % ({per(t)}), {fmt(r['mean'])} deg/m ({per(r)}); "
+        f"{t['n_segments']} segments ({', '.join(map(str, t['n_segments_per_length']))}), "
+        f"starts every {t['step_poses']} poses"
+    )
     return "\n".join(lines)
 
 
@@ -76,9 +96,15 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         check_output_file(args.plot, "--plot")
     ev = evaluate(
-        read_tum(args.ref), read_tum(args.est), align=args.align, deltas=args.delta,
-        delta_unit=args.delta_unit, all_pairs=args.all_pairs, max_diff_s=args.max_diff,
-        drift_lengths_m=args.drift_length, drift_step=args.drift_step,
+        read_tum(args.ref),
+        read_tum(args.est),
+        align=args.align,
+        deltas=args.delta,
+        delta_unit=args.delta_unit,
+        all_pairs=args.all_pairs,
+        max_diff_s=args.max_diff,
+        drift_lengths_m=args.drift_length,
+        drift_step=args.drift_step,
     )
     d = ev.to_dict()
     print(to_json(d) if args.json else _table(d))

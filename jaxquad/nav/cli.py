@@ -22,20 +22,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--world", default="house", choices=["house", "warehouse"], help="world kind (default house)")
     parser.add_argument("--robots", type=int, default=4, help="robots, each with its own start and goals (default 4)")
     parser.add_argument("--goals", type=int, default=5, help="goals per robot, visited in turn (default 5)")
-    parser.add_argument("--variant", default="full", choices=sorted(VARIANTS),
-                        help="full: leg-inertial odometry + IMU-stabilized scans; baseline: visual odometry + "
-                             "fixed-row scans (default full)")  # fmt: skip
-    parser.add_argument("--odometry", default=None, choices=["leg", "visual"],
-                        help="override the variant's odometry (leg with --variant baseline: B+LO; default: the "
-                             "variant's)")  # fmt: skip
-    parser.add_argument("--scans", default=None, choices=["stabilized", "baseline"],
-                        help="override the variant's scans (stabilized with --variant baseline: B+SS; default: "
-                             "the variant's)")  # fmt: skip
-    parser.add_argument("--map", default="truth", choices=sorted(MAP_SOURCES),
-                        help="the map navigated on: truth = the world's true occupancy map; slam = the map the "
-                             "variant's SLAM builds on a route-following walk first (default truth)")  # fmt: skip
-    parser.add_argument("--map-walk-seconds", type=float, default=None,
-                        help="--map slam: length of the mapping walk, s (default: one lap of the route loop)")
+    parser.add_argument(
+        "--variant",
+        default="full",
+        choices=sorted(VARIANTS),
+        help="full: leg-inertial odometry + IMU-stabilized scans; baseline: visual odometry + "
+        "fixed-row scans (default full)",
+    )
+    parser.add_argument(
+        "--odometry",
+        default=None,
+        choices=["leg", "visual"],
+        help="override the variant's odometry (leg with --variant baseline: B+LO; default: the variant's)",
+    )
+    parser.add_argument(
+        "--scans",
+        default=None,
+        choices=["stabilized", "baseline"],
+        help="override the variant's scans (stabilized with --variant baseline: B+SS; default: the variant's)",
+    )
+    parser.add_argument(
+        "--map",
+        default="truth",
+        choices=sorted(MAP_SOURCES),
+        help="the map navigated on: truth = the world's true occupancy map; slam = the map the "
+        "variant's SLAM builds on a route-following walk first (default truth)",
+    )
+    parser.add_argument(
+        "--map-walk-seconds",
+        type=float,
+        default=None,
+        help="--map slam: length of the mapping walk, s (default: one lap of the route loop)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="world, starts, goals, robot variation, noise (default 0)")
     parser.add_argument("--out", required=True, help="output folder (replaced whole when the run succeeds)")
     parser.add_argument(
@@ -44,18 +62,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=["calm", "aggressive"],
         help="gait: aggressive swings the body and stops and goes (default aggressive)",
     )
-    parser.add_argument("--particles", type=int, default=None,
-                        help="AMCL particles per robot (default: max_particles of the AMCL file, 2000)")  # fmt: skip
-    parser.add_argument("--amcl-params", default=None,
-                        help="AMCL parameters (YAML, any subset of jaxquad/localize/amcl.yaml; default "
-                             "jaxquad/nav/amcl.yaml)")  # fmt: skip
+    parser.add_argument(
+        "--particles",
+        type=int,
+        default=None,
+        help="AMCL particles per robot (default: max_particles of the AMCL file, 2000)",
+    )
+    parser.add_argument(
+        "--amcl-params",
+        default=None,
+        help="AMCL parameters (YAML, any subset of jaxquad/localize/amcl.yaml; default jaxquad/nav/amcl.yaml)",
+    )
     parser.add_argument("--samples", type=int, default=1000, help="MPPI samples per control tick (default 1000)")
     parser.add_argument("--horizon", type=int, default=40, help="MPPI horizon in control ticks of 0.096 s (default 40)")
     parser.add_argument("--band-height", type=int, default=1, help="scan band height in px (default 1)")
-    parser.add_argument("--chunk-ticks", type=int, default=100,
-                        help="control ticks per compiled chunk, a multiple of 10 (default 100 = 9.6 s)")  # fmt: skip
-    parser.add_argument("--max-seconds", type=float, default=None,
-                        help="stop after this much simulated time, s (default: when every run has ended)")  # fmt: skip
+    parser.add_argument(
+        "--chunk-ticks",
+        type=int,
+        default=100,
+        help="control ticks per compiled chunk, a multiple of 10 (default 100 = 9.6 s)",
+    )
+    parser.add_argument(
+        "--max-seconds",
+        type=float,
+        default=None,
+        help="stop after this much simulated time, s (default: when every run has ended)",
+    )
     parser.add_argument("--plot-robots", type=int, default=8, help="robots drawn in paths.png (default 8)")
 
 
@@ -66,10 +98,16 @@ def run(args: argparse.Namespace) -> int:
     from jaxquad.nav.fleet import REPLAN_TICKS, NavConfig, navigate
     from jaxquad.nav.report import plot_paths, summarize
 
-    for option, value in (("--robots", args.robots), ("--goals", args.goals), ("--samples", args.samples),
-                          ("--horizon", args.horizon), ("--band-height", args.band_height),
-                          ("--chunk-ticks", args.chunk_ticks), ("--plot-robots", args.plot_robots),
-                          ("--particles", 1 if args.particles is None else args.particles)):  # fmt: skip
+    for option, value in (
+        ("--robots", args.robots),
+        ("--goals", args.goals),
+        ("--samples", args.samples),
+        ("--horizon", args.horizon),
+        ("--band-height", args.band_height),
+        ("--chunk-ticks", args.chunk_ticks),
+        ("--plot-robots", args.plot_robots),
+        ("--particles", 1 if args.particles is None else args.particles),
+    ):
         if value < 1:
             raise ValueError(f"{option} must be >= 1, got {value}")
     if args.chunk_ticks % REPLAN_TICKS:
@@ -79,12 +117,26 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"{option} must be positive, got {value}")
     check_output_dir(args.out, kind=SUMMARY_KIND)
     cfg = NavConfig(
-        robot=args.robot, world=args.world, n_robots=args.robots, n_goals=args.goals, variant=args.variant,
-        map=args.map, style=args.style, seed=args.seed, particles=args.particles, amcl_params=args.amcl_params,
-        samples=args.samples, horizon=args.horizon, band_height=args.band_height, chunk_ticks=args.chunk_ticks,
-        odometry=args.odometry, scans=args.scans, max_seconds=args.max_seconds, map_walk_seconds=args.map_walk_seconds,
+        robot=args.robot,
+        world=args.world,
+        n_robots=args.robots,
+        n_goals=args.goals,
+        variant=args.variant,
+        map=args.map,
+        style=args.style,
+        seed=args.seed,
+        particles=args.particles,
+        amcl_params=args.amcl_params,
+        samples=args.samples,
+        horizon=args.horizon,
+        band_height=args.band_height,
+        chunk_ticks=args.chunk_ticks,
+        odometry=args.odometry,
+        scans=args.scans,
+        max_seconds=args.max_seconds,
+        map_walk_seconds=args.map_walk_seconds,
         trace_robots=max(args.plot_robots, 1),
-    )  # fmt: skip
+    )
     with progress_bar("navigate", "goal") as progress:
         result = navigate(cfg, progress=progress)
     summary = summarize(result)

@@ -26,7 +26,8 @@ pure, `vmap` over robots with `input_axes(fleet)`.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -175,10 +176,16 @@ def make_loop(fleet, config: LoopConfig) -> LoopFunctions:
 
     def estimator_sample(smp: dict, dt) -> PipelineSample:
         return PipelineSample(
-            dt=jnp.asarray(dt, jnp.float32), q=smp["q"], qd=smp["qd"], tau=smp["tau"], gyro=smp["gyro"],
-            acc=smp["acc"], quat_wxyz=smp["quat_wxyz"], contact_weight=smp["gt_contact"].astype(jnp.float32),
+            dt=jnp.asarray(dt, jnp.float32),
+            q=smp["q"],
+            qd=smp["qd"],
+            tau=smp["tau"],
+            gyro=smp["gyro"],
+            acc=smp["acc"],
+            quat_wxyz=smp["quat_wxyz"],
+            contact_weight=smp["gt_contact"].astype(jnp.float32),
             valid=smp["valid"],
-        )  # fmt: skip
+        )
 
     def true_pose(sim) -> Float[Array, " 3"]:
         q = sim.data.qpos[robot.base_qpos_adr : robot.base_qpos_adr + 7]
@@ -187,8 +194,9 @@ def make_loop(fleet, config: LoopConfig) -> LoopFunctions:
     def scan_of(params: LoopParams, est, depth):
         if config.scans == "stabilized":
             roll, pitch = roll_pitch(est.pose.q_world_base)
-            return stabilized_scan(depth, params.intrinsics, roll, pitch, config.band_height, params.range_min,
-                                   params.range_max)  # fmt: skip
+            return stabilized_scan(
+                depth, params.intrinsics, roll, pitch, config.band_height, params.range_min, params.range_max
+            )
         return baseline_scan(depth, params.intrinsics, config.band_height, params.range_min, params.range_max)
 
     def leg_T(est) -> Float[Array, "4 4"]:
@@ -199,8 +207,9 @@ def make_loop(fleet, config: LoopConfig) -> LoopFunctions:
         if not visual:
             return None, _planar(s.est.pose.p_world_base, s.est.pose.q_world_base)
         R_cam = R_imu_cam.T @ s.R_gyro @ R_imu_cam
-        vo_state, out = vo.step(params.vo, s.vo, vo.VoInputs(depth=depth, R_prev_cur_gyro=R_cam,
-                                                              T_world_base_leg=leg_T(s.est)))  # fmt: skip
+        vo_state, out = vo.step(
+            params.vo, s.vo, vo.VoInputs(depth=depth, R_prev_cur_gyro=R_cam, T_world_base_leg=leg_T(s.est))
+        )
         return vo_state, _planar(out.T_world_base[:3, 3], SO3.from_matrix(out.T_world_base[:3, :3]).wxyz)
 
     def time_limit(params: LoopParams, m: NavMap, gid, pose):
@@ -231,12 +240,24 @@ def make_loop(fleet, config: LoopConfig) -> LoopFunctions:
         )
         G = config.n_goals
         return LoopState(
-            sim=sim, est=est, vo=vo_state, R_gyro=jnp.eye(3), amcl=amcl, pose=out.pose,
-            nav=nav.init(params.nav, out.pose), cmd=jnp.zeros(3), goal=jnp.zeros((), jnp.int32),
-            attempt_start=sim.t, limit=time_limit(params, inputs.nav_map, inputs.goal_ids[0], out.pose),
-            outcome=jnp.zeros(G, jnp.int32), elapsed=jnp.full(G, jnp.nan), end_error=jnp.full((G, 2), jnp.nan),
-            lost_for=jnp.zeros(()), done=jnp.zeros((), bool), key=key,
-        )  # fmt: skip
+            sim=sim,
+            est=est,
+            vo=vo_state,
+            R_gyro=jnp.eye(3),
+            amcl=amcl,
+            pose=out.pose,
+            nav=nav.init(params.nav, out.pose),
+            cmd=jnp.zeros(3),
+            goal=jnp.zeros((), jnp.int32),
+            attempt_start=sim.t,
+            limit=time_limit(params, inputs.nav_map, inputs.goal_ids[0], out.pose),
+            outcome=jnp.zeros(G, jnp.int32),
+            elapsed=jnp.full(G, jnp.nan),
+            end_error=jnp.full((G, 2), jnp.nan),
+            lost_for=jnp.zeros(()),
+            done=jnp.zeros((), bool),
+            key=key,
+        )
 
     def frame(params: LoopParams, inputs: LoopInputs, s: LoopState):
         def sample_period(s: LoopState, _):
@@ -264,8 +285,9 @@ def make_loop(fleet, config: LoopConfig) -> LoopFunctions:
         hit = jnp.any(footprint_overlaps(inputs.setup.boxes, rect, params.footprint_half))
         sim = eqx.tree_at(lambda r: r.collided, sim, sim.collided | hit)
         lost_for = jnp.where(err > params.lost_error, s.lost_for + frame_dt, 0.0)
-        s = dataclasses.replace(s, sim=sim, vo=vo_state, R_gyro=jnp.eye(3), amcl=amcl, pose=out.pose,
-                                lost_for=lost_for, key=key)  # fmt: skip
+        s = dataclasses.replace(
+            s, sim=sim, vo=vo_state, R_gyro=jnp.eye(3), amcl=amcl, pose=out.pose, lost_for=lost_for, key=key
+        )
         return s, (err, odom)
 
     def tick(params: LoopParams, s: LoopState, inputs: LoopInputs) -> tuple[LoopState, LoopOutput]:
@@ -280,18 +302,25 @@ def make_loop(fleet, config: LoopConfig) -> LoopFunctions:
             inputs.replan, lambda: nav.plan_to(params.nav, m.grid, m.table, gid, s.pose), lambda: s.nav.plan
         )
         nav_state, out = nav.step(
-            params.nav, nav.NavState(controller=s.nav.controller, plan=plan),
+            params.nav,
+            nav.NavState(controller=s.nav.controller, plan=plan),
             nav.NavInputs(pose=s.pose, goal=goal, grid=m.grid, key=k_nav),
-        )  # fmt: skip
+        )
 
         t, truth = s.sim.t, true_pose(s.sim)
         d_xy, d_yaw = _pose_error(truth, goal)
         on_goal = (d_xy <= params.success_xy) & (d_yaw <= params.success_yaw)
         ended = jnp.select(
-            [s.sim.collided, s.sim.fallen, s.lost_for >= params.lost_time - 0.5 * frame_dt, out.arrived,
-             t - s.attempt_start > s.limit],
-            [COLLIDED, FALLEN, LOST, jnp.where(on_goal, REACHED, MISSED), TIMEOUT], PENDING,
-        )  # fmt: skip
+            [
+                s.sim.collided,
+                s.sim.fallen,
+                s.lost_for >= params.lost_time - 0.5 * frame_dt,
+                out.arrived,
+                t - s.attempt_start > s.limit,
+            ],
+            [COLLIDED, FALLEN, LOST, jnp.where(on_goal, REACHED, MISSED), TIMEOUT],
+            PENDING,
+        )
         ended = jnp.where(active, ended, PENDING)
         finish = ended != PENDING
         terminal = (ended == COLLIDED) | (ended == FALLEN) | (ended == LOST)
@@ -308,13 +337,28 @@ def make_loop(fleet, config: LoopConfig) -> LoopFunctions:
         nav_state = jax.tree.map(lambda a, b: jnp.where(finish, a, b), fresh, nav_state)
         cmd = jnp.where(done | finish, 0.0, out.cmd)
         s = dataclasses.replace(
-            s, nav=nav_state, cmd=cmd, goal=goal_idx.astype(jnp.int32), outcome=outcome, elapsed=elapsed,
-            end_error=end_error, done=done, key=key, attempt_start=jnp.where(finish, t, s.attempt_start),
+            s,
+            nav=nav_state,
+            cmd=cmd,
+            goal=goal_idx.astype(jnp.int32),
+            outcome=outcome,
+            elapsed=elapsed,
+            end_error=end_error,
+            done=done,
+            key=key,
+            attempt_start=jnp.where(finish, t, s.attempt_start),
             limit=jnp.where(finish, time_limit(params, m, next_gid, s.pose), s.limit),
-        )  # fmt: skip
+        )
         return s, LoopOutput(
-            t=t, true_pose=truth, pose=s.pose, odom=odom[-1], loc_error=err, goal=k, active=active,
-            recovering=out.recovering & active, cmd=cmd,
-        )  # fmt: skip
+            t=t,
+            true_pose=truth,
+            pose=s.pose,
+            odom=odom[-1],
+            loc_error=err,
+            goal=k,
+            active=active,
+            recovering=out.recovering & active,
+            cmd=cmd,
+        )
 
     return LoopFunctions(init=init, tick=tick)

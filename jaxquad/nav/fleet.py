@@ -99,9 +99,13 @@ class NavConfig:
     def loop_config(self) -> cl.LoopConfig:
         odometry, scans = VARIANTS[self.variant]
         return cl.LoopConfig(
-            odometry=self.odometry or odometry, scans=self.scans or scans, n_goals=self.n_goals,
-            band_height=self.band_height, contacts=self.contacts, n_particles=self.localize_params().max_particles,
-        )  # fmt: skip
+            odometry=self.odometry or odometry,
+            scans=self.scans or scans,
+            n_goals=self.n_goals,
+            band_height=self.band_height,
+            contacts=self.contacts,
+            n_particles=self.localize_params().max_particles,
+        )
 
 
 @dataclasses.dataclass
@@ -150,11 +154,17 @@ def _params(cfg: NavConfig, loop: cl.LoopConfig, fleet, occ, tick_dt: float) -> 
         pipeline=PipelineParams.default(len(fleet.robot.foot_names), "mixed"),
         vo=vo.VoParams.default(K, T_bc, coupling="off") if loop.odometry == "visual" else None,
         intrinsics=CameraIntrinsics(f32(K[0, 0]), f32(K[1, 1]), f32(K[0, 2]), f32(K[1, 2])),
-        range_min=f32(lp.laser_min_range), range_max=f32(lp.laser_max_range),
-        footprint_center=f32(center), footprint_half=f32(half),
-        success_xy=f32(SUCCESS_XY), success_yaw=f32(SUCCESS_YAW), lost_error=f32(0.5), lost_time=f32(2.0),
-        timeout_base=f32(30.0), timeout_speed=f32(0.1),
-    )  # fmt: skip
+        range_min=f32(lp.laser_min_range),
+        range_max=f32(lp.laser_max_range),
+        footprint_center=f32(center),
+        footprint_half=f32(half),
+        success_xy=f32(SUCCESS_XY),
+        success_yaw=f32(SUCCESS_YAW),
+        lost_error=f32(0.5),
+        lost_time=f32(2.0),
+        timeout_base=f32(30.0),
+        timeout_speed=f32(0.1),
+    )
 
 
 # (robot, fleet structure, loop configuration) -> jitted (init, chunk): the functions close over static
@@ -193,10 +203,16 @@ def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray
 
     loop = cfg.loop_config()
     fleet = build_fleet(
-        FleetConfig(robot=cfg.robot, world=cfg.world, n_robots=cfg.n_robots, style=cfg.style, seed=cfg.seed,
-                    randomize=cfg.randomize),
+        FleetConfig(
+            robot=cfg.robot,
+            world=cfg.world,
+            n_robots=cfg.n_robots,
+            style=cfg.style,
+            seed=cfg.seed,
+            randomize=cfg.randomize,
+        ),
         compile_chunk=False,
-    )  # fmt: skip
+    )
     world = fleet.worlds[0]
     occ = missions.MAP_SOURCES[cfg.map](cfg, world)
     tick_dt = loop.frames_per_tick * fleet.frame_dt
@@ -216,14 +232,16 @@ def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray
     # The field measures distances to obstacle surfaces: the map's obstacles may be filled (see likelihood_field).
     field = field_of_map(occ, cfg.localize_params().laser_likelihood_max_dist, surfaces=True)
     nav_map = cl.NavMap(grid=grid, field=field, table=table)
-    inputs = cl.LoopInputs(model=fleet.model, setup=fleet.setup, nav_map=nav_map,
-                           goal_ids=jnp.asarray(goal_ids), replan=jnp.asarray(True))  # fmt: skip
+    inputs = cl.LoopInputs(
+        model=fleet.model, setup=fleet.setup, nav_map=nav_map, goal_ids=jnp.asarray(goal_ids), replan=jnp.asarray(True)
+    )
 
     qpos0 = np.tile(fleet.robot.qpos_home, (cfg.n_robots, 1))
     a = fleet.robot.base_qpos_adr
     qpos0[:, a : a + 2] = starts[:, :2]
-    qpos0[:, a + 3 : a + 7] = np.stack([np.cos(starts[:, 2] / 2), 0 * starts[:, 2], 0 * starts[:, 2],
-                                        np.sin(starts[:, 2] / 2)], 1)  # fmt: skip
+    qpos0[:, a + 3 : a + 7] = np.stack(
+        [np.cos(starts[:, 2] / 2), 0 * starts[:, 2], 0 * starts[:, 2], np.sin(starts[:, 2] / 2)], 1
+    )
     init, chunk = _compiled_functions(fleet, loop)
     keys = jax.random.split(jax.random.key(cfg.seed), cfg.n_robots)
     t0 = time.perf_counter()
@@ -255,16 +273,33 @@ def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray
             break
     trace = jax.tree.map(lambda *x: np.concatenate(x), *outs)
     return NavResult(
-        config=cfg, occ=occ, world=world, starts=starts, goals=np.asarray(pool)[goal_ids],
-        outcome=np.asarray(states.outcome), elapsed=np.asarray(states.elapsed), end_error=np.asarray(states.end_error),
-        t=trace.t[:, 0], active=trace.active, loc_error=trace.loc_error, recovering=trace.recovering,
-        true_pose=trace.true_pose, pose=trace.pose, compile_s=compile_s, run_s=run_s,
+        config=cfg,
+        occ=occ,
+        world=world,
+        starts=starts,
+        goals=np.asarray(pool)[goal_ids],
+        outcome=np.asarray(states.outcome),
+        elapsed=np.asarray(states.elapsed),
+        end_error=np.asarray(states.end_error),
+        t=trace.t[:, 0],
+        active=trace.active,
+        loc_error=trace.loc_error,
+        recovering=trace.recovering,
+        true_pose=trace.true_pose,
+        pose=trace.pose,
+        compile_s=compile_s,
+        run_s=run_s,
         sim_s=float(trace.t[-1, 0]),
-    )  # fmt: skip
+    )
 
 
 def _keep(out: cl.LoopOutput, n_trace: int) -> cl.LoopOutput:
     """The chunk's outputs on the host; poses of the first `n_trace` robots only."""
     out = jax.device_get(out)
-    return dataclasses.replace(out, true_pose=out.true_pose[:, :n_trace], pose=out.pose[:, :n_trace],
-                               odom=out.odom[:, :n_trace], cmd=out.cmd[:, :n_trace])  # fmt: skip
+    return dataclasses.replace(
+        out,
+        true_pose=out.true_pose[:, :n_trace],
+        pose=out.pose[:, :n_trace],
+        odom=out.odom[:, :n_trace],
+        cmd=out.cmd[:, :n_trace],
+    )

@@ -14,7 +14,7 @@ its start) are at least `min_separation` apart.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -54,8 +54,16 @@ def slam_map(cfg, world: World) -> OccupancyMap:
     walk = FleetConfig(robot=cfg.robot, world=cfg.world, n_robots=1, style=cfg.style, seed=cfg.seed)
     log = rollout(walk, seconds, progress=False)
     values = load_params()
-    x = laser_inputs(log, loop.scans, cfg.contacts, loop.band_height, 0.2, values["max_laser_range"], None,
-                     values["leg_yaw_rate_std"])  # fmt: skip
+    x = laser_inputs(
+        log,
+        loop.scans,
+        cfg.contacts,
+        loop.band_height,
+        0.2,
+        values["max_laser_range"],
+        None,
+        values["leg_yaw_rate_std"],
+    )
     grid = map_grid(x, values["resolution"], values["max_laser_range"])
     spec, params = slam_config(values, grid, "preintegrated" if loop.odometry == "leg" else "off", x["T_base_laser"])
     state, _, _ = run_fleet(spec, params, x)

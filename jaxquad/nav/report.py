@@ -25,9 +25,14 @@ def _stats(x: np.ndarray) -> dict:
     if x.size == 0:
         return {"n": 0, "median": None, "mean": None, "p95": None, "p99": None, "max": None, "rmse": None}
     return {
-        "n": int(x.size), "median": float(np.median(x)), "mean": float(x.mean()), "p95": float(np.percentile(x, 95)),
-        "p99": float(np.percentile(x, 99)), "max": float(x.max()), "rmse": float(np.sqrt(np.mean(x**2))),
-    }  # fmt: skip
+        "n": int(x.size),
+        "median": float(np.median(x)),
+        "mean": float(x.mean()),
+        "p95": float(np.percentile(x, 95)),
+        "p99": float(np.percentile(x, 99)),
+        "max": float(x.max()),
+        "rmse": float(np.sqrt(np.mean(x**2))),
+    }
 
 
 def summarize(result) -> dict:
@@ -38,11 +43,18 @@ def summarize(result) -> dict:
     rising = result.recovering & ~np.concatenate([np.zeros_like(result.recovering[:1]), result.recovering[:-1]])
     per_robot_err = [result.loc_error[result.active[:, i], i].ravel() for i in range(n)]
     per_goal = [
-        {"robot": i, "index": k, "goal": result.goals[i, k].tolist(), "outcome": OUTCOMES[result.outcome[i, k]],
-         "time_s": float(result.elapsed[i, k]), "true_error_m": float(result.end_error[i, k, 0]),
-         "true_error_yaw_rad": float(result.end_error[i, k, 1])}
-        for i in range(n) for k in range(g)
-    ]  # fmt: skip
+        {
+            "robot": i,
+            "index": k,
+            "goal": result.goals[i, k].tolist(),
+            "outcome": OUTCOMES[result.outcome[i, k]],
+            "time_s": float(result.elapsed[i, k]),
+            "true_error_m": float(result.end_error[i, k, 0]),
+            "true_error_yaw_rad": float(result.end_error[i, k, 1]),
+        }
+        for i in range(n)
+        for k in range(g)
+    ]
     loop = cfg.loop_config()
     return {
         "kind": SUMMARY_KIND,
@@ -65,7 +77,7 @@ def summarize(result) -> dict:
             "simulated_s": result.sim_s,
             "real_time_factor": result.sim_s / result.run_s if result.run_s > 0 else None,
             "robot_seconds_per_s": n * result.sim_s / result.run_s if result.run_s > 0 else None,
-        },  # fmt: skip
+        },
         "per_goal": per_goal,
     }
 
@@ -85,8 +97,16 @@ def plot_paths(result, path, max_robots: int = 8) -> None:
     x0, y0 = occ.origin[0], occ.origin[1]
     extent = (x0, x0 + cols * occ.resolution, y0, y0 + rows * occ.resolution)
     image = np.where(occ.grid < 0, 0.8, 1.0 - np.clip(occ.grid, 0, 100) / 100.0)
-    colors = {"reached": "tab:green", "missed": "gold", "collided": "tab:red", "lost": "tab:purple",
-              "timeout": "tab:orange", "fallen": "tab:brown", "skipped": "tab:gray", "pending": "tab:gray"}  # fmt: skip
+    colors = {
+        "reached": "tab:green",
+        "missed": "gold",
+        "collided": "tab:red",
+        "lost": "tab:purple",
+        "timeout": "tab:orange",
+        "fallen": "tab:brown",
+        "skipped": "tab:gray",
+        "pending": "tab:gray",
+    }
     fig, ax = plt.subplots(figsize=(8, 8 * rows / max(cols, 1) + 0.5))
     ax.imshow(image, cmap="gray", vmin=0, vmax=1, origin="lower", extent=extent)
     m = min(max_robots, result.true_pose.shape[1])
@@ -105,8 +125,9 @@ def plot_paths(result, path, max_robots: int = 8) -> None:
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     s = result.config
-    ax.set_title(f"{s.robot}, {s.world}, {s.variant}: true paths (solid), localization (dotted); goals by outcome",
-                 fontsize=9)  # fmt: skip
+    ax.set_title(
+        f"{s.robot}, {s.world}, {s.variant}: true paths (solid), localization (dotted); goals by outcome", fontsize=9
+    )
     ax.legend(fontsize=7, loc="upper right")
     fig.tight_layout()
     with atomic_open(path, "wb") as f:

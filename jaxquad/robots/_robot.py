@@ -10,6 +10,7 @@ from pathlib import Path
 import jax
 import mujoco
 import numpy as np
+
 from jaxquad._mjx import mjx
 
 _XML_DIR = Path(__file__).resolve().parent / "xmls"
@@ -77,8 +78,7 @@ def load(
         path = Path(key).expanduser()
         if path.suffix.lower() not in (".xml", ".urdf", ".mjcf"):
             raise ValueError(
-                f"unknown robot {key!r}: expected one of {', '.join(BUILTIN_ROBOTS)} or a path to an "
-                ".xml/.urdf file"
+                f"unknown robot {key!r}: expected one of {', '.join(BUILTIN_ROBOTS)} or a path to an .xml/.urdf file"
             )
         if not path.is_file():
             raise ValueError(f"robot file not found: {path}")
@@ -137,9 +137,7 @@ def _structure(
     jnt = m.actuator_trnid[:, 0].astype(int)
     if len(set(jnt.tolist())) != m.nu:
         raise ValueError(f"robot model {path}: a joint is driven by more than one actuator")
-    if np.any(
-        (m.jnt_type[jnt] != mujoco.mjtJoint.mjJNT_HINGE) & (m.jnt_type[jnt] != mujoco.mjtJoint.mjJNT_SLIDE)
-    ):
+    if np.any((m.jnt_type[jnt] != mujoco.mjtJoint.mjJNT_HINGE) & (m.jnt_type[jnt] != mujoco.mjtJoint.mjJNT_SLIDE)):
         raise ValueError(f"robot model {path}: actuated joints must be hinge or slide joints")
     joint_names = tuple(m.joint(j).name for j in jnt)
     pos_of_joint = {int(j): i for i, j in enumerate(jnt)}

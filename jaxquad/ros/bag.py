@@ -80,8 +80,10 @@ def topic_connections(reader, path, topic: str, role: str, want_type: str | None
     if want_type is not None and want_type != msgtype:
         raise ValueError(f"bag {path}: topic {topic!r} ({role}) carries {msgtype}, the topics file says {want_type}")
     if msgtype not in reader.typestore.fielddefs:
-        raise ValueError(f"bag {path}: message type {msgtype} of {topic!r} ({role}) is unknown: the bag has no "
-                         f"definition for it; list its .msg file under 'types' in the topics file")  # fmt: skip
+        raise ValueError(
+            f"bag {path}: message type {msgtype} of {topic!r} ({role}) is unknown: the bag has no "
+            f"definition for it; list its .msg file under 'types' in the topics file"
+        )
     return conns
 
 

@@ -119,8 +119,10 @@ def _depth(read: dict, topics: Topics, t: np.ndarray, sec, bag) -> dict:
         raise ValueError(f"bag {bag}: no depth frame within the IMU/joint time span")
     shapes = {img.shape for img in v["depth"]}
     if len(shapes) != 1 or shapes.pop() != read["image_size"]:
-        raise ValueError(f"bag {bag}: depth images ({sorted({i.shape for i in v['depth']})}) do not all match "
-                         f"the camera_info size {read['image_size']}")  # fmt: skip
+        raise ValueError(
+            f"bag {bag}: depth images ({sorted({i.shape for i in v['depth']})}) do not all match "
+            f"the camera_info size {read['image_size']}"
+        )
     entry = topics.roles["T_base_camera"]
     if "matrix" in entry:
         T = np.asarray(entry["matrix"], np.float64)
@@ -150,8 +152,12 @@ def convert_bag(bag: str | os.PathLike, topics_path: str | os.PathLike, robot: s
     sec = lambda ns: (ns - origin) * 1e-9
     t, imu_t, js_t = sec(clock), sec(imu_t), sec(js_t)
     method, tol = topics.interpolation, topics.tolerance_s
-    log: dict[str, np.ndarray] = {"t": t, "t_origin_s": np.float64(origin * 1e-9), "robot": np.asarray(robot),
-                                  "joint_names": np.asarray(model.joint_names)}  # fmt: skip
+    log: dict[str, np.ndarray] = {
+        "t": t,
+        "t_origin_s": np.float64(origin * 1e-9),
+        "robot": np.asarray(robot),
+        "joint_names": np.asarray(model.joint_names),
+    }
     for s, values in ((imu_t, imu), (js_t, js)):
         for key, x in values.items():
             y = resample_quat(s, x, t, method, tol) if key == "quat_wxyz" else resample(s, x, t, method, tol)
@@ -165,12 +171,16 @@ def convert_bag(bag: str | os.PathLike, topics_path: str | os.PathLike, robot: s
     if "ground_truth" in topics.roles:
         s, v = read["streams"]["ground_truth"].arrays()
         s = sec(s)
-        gt = np.concatenate([resample(s, v["gt_pose"][:, :3], t, method, tol),
-                             resample_quat(s, v["gt_pose"][:, 3:], t, method, tol)], axis=1)  # fmt: skip
+        gt = np.concatenate(
+            [resample(s, v["gt_pose"][:, :3], t, method, tol), resample_quat(s, v["gt_pose"][:, 3:], t, method, tol)],
+            axis=1,
+        )
         bad = ~np.all(np.isfinite(gt), axis=1)
         if np.any(bad):
-            raise ValueError(f"bag {bag}: ground truth has no sample within {tol} s of t = {t[np.argmax(bad)]:.3f} s "
-                             f"(raise tolerance_s or drop ground_truth)")  # fmt: skip
+            raise ValueError(
+                f"bag {bag}: ground truth has no sample within {tol} s of t = {t[np.argmax(bad)]:.3f} s "
+                f"(raise tolerance_s or drop ground_truth)"
+            )
         log["gt_pose"] = gt
     if "depth" in topics.roles:
         log.update(_depth(read, topics, t, sec, bag))

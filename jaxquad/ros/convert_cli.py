@@ -28,7 +28,12 @@ def run(args: argparse.Namespace) -> int:
 
     log = convert(args.bag, args.topics, args.robot, args.out)
     t = np.asarray(log["t"])
-    brief = {"out": str(args.out), "samples": int(t.size), "duration_s": float(t[-1]),
-             "keys": sorted(log), "depth_frames": len(log.get("depth_t", []))}  # fmt: skip
+    brief = {
+        "out": str(args.out),
+        "samples": int(t.size),
+        "duration_s": float(t[-1]),
+        "keys": sorted(log),
+        "depth_frames": len(log.get("depth_t", [])),
+    }
     print(json.dumps(brief, indent=2))
     return 0

@@ -31,7 +31,6 @@ from scipy.spatial.transform import Rotation
 
 from jaxquad.ros.messages import FORMATS, bag_writer, seconds_to_ns
 
-
 _SCAN_KEYS = ("depth_t", "ranges_stabilized", "ranges_baseline", "bearings", "roll", "pitch")
 
 
@@ -84,9 +83,11 @@ def _odometry(m, t_ns, name, frame, p, q_wxyz, v, w):
     ty = m.types
     twist = ty["geometry_msgs/msg/Twist"](linear=m.vector3(v), angular=m.vector3(w))
     return ty["nav_msgs/msg/Odometry"](
-        header=m.header(t_ns, frame), child_frame_id=f"{name}/base_link",
+        header=m.header(t_ns, frame),
+        child_frame_id=f"{name}/base_link",
         pose=ty["geometry_msgs/msg/PoseWithCovariance"](pose=m.pose(p, q_wxyz), covariance=np.zeros(36)),
-        twist=ty["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=np.zeros(36)))  # fmt: skip
+        twist=ty["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=np.zeros(36)),
+    )
 
 
 def _trajectory_messages(m, name, traj, extra, frame):
@@ -132,9 +133,17 @@ def _scan_messages(m, name, scans):
         rmax = float(finite.max()) if finite.size else 0.0
         for i, t in enumerate(ns):
             msg = ty["sensor_msgs/msg/LaserScan"](
-                header=m.header(t, frame), angle_min=lo, angle_max=lo + step * (ranges.shape[1] - 1), angle_increment=step,
-                time_increment=0.0, scan_time=0.0, range_min=0.0, range_max=rmax,
-                ranges=ranges[i].astype(np.float32), intensities=np.zeros(0, np.float32))  # fmt: skip
+                header=m.header(t, frame),
+                angle_min=lo,
+                angle_max=lo + step * (ranges.shape[1] - 1),
+                angle_increment=step,
+                time_increment=0.0,
+                scan_time=0.0,
+                range_min=0.0,
+                range_max=rmax,
+                ranges=ranges[i].astype(np.float32),
+                intensities=np.zeros(0, np.float32),
+            )
             out.append((t, f"/{name}/scan_{key}", "sensor_msgs/msg/LaserScan", msg))
     for i, t in enumerate(ns):
         tf = m.transform(t, f"{name}/base_link", f"{name}/base_level", np.zeros(3), q_base_level[i])
@@ -147,10 +156,15 @@ def _map_message(m, occ, t_ns, frame):
     rows, cols = occ.grid.shape
     x, y, yaw = occ.origin
     info = ty["nav_msgs/msg/MapMetaData"](
-        map_load_time=m.time(t_ns), resolution=float(occ.resolution), width=cols, height=rows,
-        origin=m.pose([x, y, 0.0], [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]))  # fmt: skip
-    return ty["nav_msgs/msg/OccupancyGrid"](header=m.header(t_ns, frame), info=info,
-                                            data=np.ascontiguousarray(occ.grid, np.int8).ravel())  # fmt: skip
+        map_load_time=m.time(t_ns),
+        resolution=float(occ.resolution),
+        width=cols,
+        height=rows,
+        origin=m.pose([x, y, 0.0], [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]),
+    )
+    return ty["nav_msgs/msg/OccupancyGrid"](
+        header=m.header(t_ns, frame), info=info, data=np.ascontiguousarray(occ.grid, np.int8).ravel()
+    )
 
 
 def export(folder: str | os.PathLike, out: str | os.PathLike, fmt: str = "mcap", frame: str = "odom") -> dict:

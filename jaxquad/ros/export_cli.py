@@ -12,8 +12,12 @@ import argparse
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dir", help="results folder (TUM trajectories, <name>_scans.npz, map YAML + PGM)")
     parser.add_argument("--bag", required=True, help="output bag: a .bag file for ros1, else a ROS 2 bag folder")
-    parser.add_argument("--format", choices=("mcap", "sqlite3", "ros1"), default="mcap",
-                        help="bag format: ROS 2 mcap, ROS 2 sqlite3 or ROS 1 (default: mcap)")  # fmt: skip
+    parser.add_argument(
+        "--format",
+        choices=("mcap", "sqlite3", "ros1"),
+        default="mcap",
+        help="bag format: ROS 2 mcap, ROS 2 sqlite3 or ROS 1 (default: mcap)",
+    )
     parser.add_argument("--frame", default="odom", help="world frame of trajectories and maps (default: odom)")
 
 

@@ -55,8 +55,10 @@ class JointReader:
             missing = [j for j in self.joint_names if j not in pos]
             if missing:
                 have = ", ".join(str(n) for n in names if n is not None)
-                raise ValueError(f"joint_states ({self.entry['topic']}): robot joint(s) {', '.join(missing)} not in the "
-                                 f"message (it has: {have}); rename with joint_map")  # fmt: skip
+                raise ValueError(
+                    f"joint_states ({self.entry['topic']}): robot joint(s) {', '.join(missing)} not in the "
+                    f"message (it has: {have}); rename with joint_map"
+                )
             self._cache[names] = np.array([pos[j] for j in self.joint_names])
         return self._cache[names]
 
@@ -93,8 +95,10 @@ def feet(topics: Topics, role: str, msg, msgtype: str, n_feet: int) -> np.ndarra
             topics.fail(f"{role}.index", f"expected {n_feet} element indices below {v.size}, got {entry['index']}")
         v = v[np.asarray(entry["index"])]
     elif v.size != n_feet:
-        raise ValueError(f"{role} ({entry['topic']}): {v.size} values per message, the robot has {n_feet} feet; "
-                         f"pick them with 'index'")  # fmt: skip
+        raise ValueError(
+            f"{role} ({entry['topic']}): {v.size} values per message, the robot has {n_feet} feet; "
+            f"pick them with 'index'"
+        )
     if role == "contact":
         v = (v > float(entry["threshold"])) if "threshold" in entry else (v != 0)
     return v.astype(np.float64)
@@ -104,8 +108,9 @@ def depth_image(msg, topic: str) -> np.ndarray:
     """(H, W) float32 z-depth in metres, 0 = invalid (16UC1 millimetres or 32FC1 metres)."""
     enc = msg.encoding
     if enc not in _DEPTH_ENCODINGS:
-        raise ValueError(f"depth ({topic}): image encoding {enc!r} is not read (depth must be 16UC1 millimetres "
-                         f"or 32FC1 metres)")  # fmt: skip
+        raise ValueError(
+            f"depth ({topic}): image encoding {enc!r} is not read (depth must be 16UC1 millimetres or 32FC1 metres)"
+        )
     kind, per_metre = _DEPTH_ENCODINGS[enc]
     dtype = np.dtype(kind).newbyteorder(">" if msg.is_bigendian else "<")
     h, w, step = int(msg.height), int(msg.width), int(msg.step)

@@ -45,8 +45,9 @@ class Messages:
 
     def transform(self, t_ns: int | np.integer, parent: str, child: str, p, q_wxyz):
         tf = self.types["geometry_msgs/msg/Transform"](translation=self.vector3(p), rotation=self.quaternion(q_wxyz))
-        return self.types["geometry_msgs/msg/TransformStamped"](header=self.header(t_ns, parent), child_frame_id=child,
-                                                                transform=tf)  # fmt: skip
+        return self.types["geometry_msgs/msg/TransformStamped"](
+            header=self.header(t_ns, parent), child_frame_id=child, transform=tf
+        )
 
     def serialize(self, msg, msgtype: str) -> bytes:
         ser = self.store.serialize_ros1 if self.kind == "ros1" else self.store.serialize_cdr

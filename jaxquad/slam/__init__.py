@@ -12,6 +12,7 @@ from jaxquad.kernels.occupancy import (
 )
 from jaxquad.kernels.posegraph import PoseGraph, SolveInfo, SolverParams, chi2, edge_error, optimize
 from jaxquad.slam.graph import build_graph, stack_graphs
+from jaxquad.slam.mapping import fleet_maps, grid_spec, grid_spec_like, to_occupancy_map
 from jaxquad.slam.online import (
     LO_CONSTRAINTS,
     SlamInputs,
@@ -27,15 +28,48 @@ from jaxquad.slam.online import (
 )
 from jaxquad.slam.params import load_params, slam_config
 from jaxquad.slam.run import final_poses, laser_log_inputs, map_grid, run_fleet
-from jaxquad.slam.mapping import fleet_maps, grid_spec, grid_spec_like, to_occupancy_map
 from jaxquad.slam.solve import g2o_pose_graph, optimize_g2o
 from jaxquad.slam.synthetic import SyntheticGraph, manhattan_graph
 
 __all__ = [
-    "LO_CONSTRAINTS", "SlamInputs", "SlamOutput", "SlamParams", "SlamSpec", "SlamState", "final_poses", "finish",
-    "init", "laser_log_inputs", "load_params", "map_grid", "refresh_map", "run_fleet", "scan_poses", "slam_config",
-    "step", "GridSpec", "OccupancyGrid", "OccupancyParams", "PoseGraph", "SolveInfo", "SolverParams", "SyntheticGraph",
-    "build_graph", "chi2", "edge_error", "fleet_maps", "g2o_pose_graph", "grid_spec", "grid_spec_like", "init_grid",
-    "insert_scan", "manhattan_graph", "map_from_scans", "optimize", "optimize_g2o", "scan_codes", "stack_graphs",
+    "LO_CONSTRAINTS",
+    "SlamInputs",
+    "SlamOutput",
+    "SlamParams",
+    "SlamSpec",
+    "SlamState",
+    "final_poses",
+    "finish",
+    "init",
+    "laser_log_inputs",
+    "load_params",
+    "map_grid",
+    "refresh_map",
+    "run_fleet",
+    "scan_poses",
+    "slam_config",
+    "step",
+    "GridSpec",
+    "OccupancyGrid",
+    "OccupancyParams",
+    "PoseGraph",
+    "SolveInfo",
+    "SolverParams",
+    "SyntheticGraph",
+    "build_graph",
+    "chi2",
+    "edge_error",
+    "fleet_maps",
+    "g2o_pose_graph",
+    "grid_spec",
+    "grid_spec_like",
+    "init_grid",
+    "insert_scan",
+    "manhattan_graph",
+    "map_from_scans",
+    "optimize",
+    "optimize_g2o",
+    "scan_codes",
+    "stack_graphs",
     "to_occupancy_map",
-]  # fmt: skip
+]

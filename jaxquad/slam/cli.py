@@ -22,26 +22,57 @@ FORMATS = ("auto", "robot", "carmen", "laser-npz")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help="robot log (.npz), CARMEN log (text, .gz too) or laser log (.npz)")
     parser.add_argument("--out", required=True, help="output folder (created; an earlier SLAM output is replaced)")
-    parser.add_argument("--format", choices=FORMATS, default="auto",
-                        help="input kind (default auto: found from the file's content)")
-    parser.add_argument("--scans", choices=("stabilized", "baseline", "level"), default="stabilized",
-                        help="robot logs: which 2D scan of the depth images (default stabilized)")
-    parser.add_argument("--odometry", choices=("lo",), default="lo",
-                        help="robot logs: odometry of the scans (default lo, the leg-inertial odometry)")
-    parser.add_argument("--lo-constraints", choices=("off", "velocity", "preintegrated"), default="preintegrated",
-                        help="leg-odometry edges between consecutive nodes (default preintegrated; laser logs: off)")
-    parser.add_argument("--params", default=None,
-                        help="SLAM parameters (YAML; any subset of jaxquad/slam/slam.yaml; default: that file)")
-    parser.add_argument("--contacts", choices=("observer", "mixed", "sensor", "truth"), default="mixed",
-                        help="robot logs: contact source of the leg odometry (default mixed)")
-    parser.add_argument("--observer-params", default=None,
-                        help="robot logs: contact-observer parameters (as `jaxquad estimate --params`; default: the paper's)")  # fmt: skip
+    parser.add_argument(
+        "--format", choices=FORMATS, default="auto", help="input kind (default auto: found from the file's content)"
+    )
+    parser.add_argument(
+        "--scans",
+        choices=("stabilized", "baseline", "level"),
+        default="stabilized",
+        help="robot logs: which 2D scan of the depth images (default stabilized)",
+    )
+    parser.add_argument(
+        "--odometry",
+        choices=("lo",),
+        default="lo",
+        help="robot logs: odometry of the scans (default lo, the leg-inertial odometry)",
+    )
+    parser.add_argument(
+        "--lo-constraints",
+        choices=("off", "velocity", "preintegrated"),
+        default="preintegrated",
+        help="leg-odometry edges between consecutive nodes (default preintegrated; laser logs: off)",
+    )
+    parser.add_argument(
+        "--params",
+        default=None,
+        help="SLAM parameters (YAML; any subset of jaxquad/slam/slam.yaml; default: that file)",
+    )
+    parser.add_argument(
+        "--contacts",
+        choices=("observer", "mixed", "sensor", "truth"),
+        default="mixed",
+        help="robot logs: contact source of the leg odometry (default mixed)",
+    )
+    parser.add_argument(
+        "--observer-params",
+        default=None,
+        help="robot logs: contact-observer parameters (as `jaxquad estimate --params`; default: the paper's)",
+    )
     parser.add_argument("--band-height", type=int, default=5, help="robot logs: scan band height in px (default 5)")
-    parser.add_argument("--true-map", nargs="+", default=None,
-                        help="ground-truth map YAML(s) for map scores, robot i on map world_index[i] (default: the "
-                             "map_<world>_<k>.yaml files beside a simulated log, if any)")  # fmt: skip
-    parser.add_argument("--flaser-fov-deg", type=float, default=180.0,
-                        help="CARMEN FLASER lines: field of view of the beams (deg, default 180)")
+    parser.add_argument(
+        "--true-map",
+        nargs="+",
+        default=None,
+        help="ground-truth map YAML(s) for map scores, robot i on map world_index[i] (default: the "
+        "map_<world>_<k>.yaml files beside a simulated log, if any)",
+    )
+    parser.add_argument(
+        "--flaser-fov-deg",
+        type=float,
+        default=180.0,
+        help="CARMEN FLASER lines: field of view of the beams (deg, default 180)",
+    )
 
 
 def detect_format(path: Path) -> str:
@@ -89,8 +120,17 @@ def _load(args, path: Path, fmt: str, values: dict, progress=None):
 
     log = load_log(path)
     maps = _true_maps(args, path)
-    x = laser_inputs(log, args.scans, args.contacts, args.band_height, 0.2, values["max_laser_range"],
-                     args.observer_params, values["leg_yaw_rate_std"], progress)  # fmt: skip
+    x = laser_inputs(
+        log,
+        args.scans,
+        args.contacts,
+        args.band_height,
+        0.2,
+        values["max_laser_range"],
+        args.observer_params,
+        values["leg_yaw_rate_std"],
+        progress,
+    )
     n = x["odom"].shape[0]
     fleet = "fallen" in log
     names = [f"robot_{i:03d}" for i in range(n)] if fleet else ["robot"]
@@ -125,12 +165,17 @@ def run(args: argparse.Namespace) -> int:
     final = final_poses(state, out)
     t = np.asarray(x["t"], np.float64)
     summary = {
-        "kind": SUMMARY_KIND, "input": str(path), "format": fmt, "scans": args.scans if fmt == "robot" else "laser",
-        "odometry": args.odometry if fmt == "robot" else "log", "lo_constraints": lo_constraints,
-        "params_file": str(args.params or DEFAULTS_FILE), "params": values,
+        "kind": SUMMARY_KIND,
+        "input": str(path),
+        "format": fmt,
+        "scans": args.scans if fmt == "robot" else "laser",
+        "odometry": args.odometry if fmt == "robot" else "log",
+        "lo_constraints": lo_constraints,
+        "params_file": str(args.params or DEFAULTS_FILE),
+        "params": values,
         "grid": {k: getattr(grid, k) for k in ("rows", "cols", "resolution", "origin_x", "origin_y", "max_range")},
         "robots": [],
-    }  # fmt: skip
+    }
     with atomic_dir(args.out) as tmp:
         for i, name in enumerate(names):
             folder = tmp if len(names) == 1 else tmp / name
@@ -141,7 +186,9 @@ def run(args: argparse.Namespace) -> int:
             summary["robots"].append({"name": name, **rep})
             if true_maps is not None:
                 gt = x["gt"][i] if "gt" in x else None
-                report.draw_map_vs_truth(folder / "map_vs_truth.png", grid, s_i, final[i], x["odom"][i], gt, true_maps[i])
+                report.draw_map_vs_truth(
+                    folder / "map_vs_truth.png", grid, s_i, final[i], x["odom"][i], gt, true_maps[i]
+                )
         write_json(tmp / "summary.json", summary)
     print(to_json(_brief(summary, args.out)))
     return 0
@@ -149,8 +196,13 @@ def run(args: argparse.Namespace) -> int:
 
 def _brief(summary: dict, out) -> dict:
     robots = summary["robots"]
-    brief = {"robots": len(robots), "out": str(out), "lo_constraints": summary["lo_constraints"],
-             "nodes": [r["nodes"] for r in robots], "loop_closures": [r["loop_closures"] for r in robots]}  # fmt: skip
+    brief = {
+        "robots": len(robots),
+        "out": str(out),
+        "lo_constraints": summary["lo_constraints"],
+        "nodes": [r["nodes"] for r in robots],
+        "loop_closures": [r["loop_closures"] for r in robots],
+    }
     for which in ("odometry", "online", "final"):
         ate = [r["scores"][which]["ate"]["rmse"] for r in robots if "ate" in r.get("scores", {}).get(which, {})]
         if ate:

@@ -153,19 +153,39 @@ class SlamOutput(eqx.Module):
 def init(spec: SlamSpec, params: SlamParams, bearings: Float[Array, " b"]) -> SlamState:
     n, m, b = spec.nodes, spec.edges, bearings.shape[0]
     graph = PoseGraph(
-        poses=jnp.zeros((n, 3)), node_mask=jnp.zeros(n, bool), fixed=jnp.arange(n) == 0,
-        edge_i=jnp.zeros(m, jnp.int32), edge_j=jnp.zeros(m, jnp.int32), measurement=jnp.zeros((m, 3)),
-        information=jnp.zeros((m, 3, 3)), edge_mask=jnp.zeros(m, bool), robust=jnp.zeros(m, jnp.int32),
-    )  # fmt: skip
+        poses=jnp.zeros((n, 3)),
+        node_mask=jnp.zeros(n, bool),
+        fixed=jnp.arange(n) == 0,
+        edge_i=jnp.zeros(m, jnp.int32),
+        edge_j=jnp.zeros(m, jnp.int32),
+        measurement=jnp.zeros((m, 3)),
+        information=jnp.zeros((m, 3, 3)),
+        edge_mask=jnp.zeros(m, bool),
+        robust=jnp.zeros(m, jnp.int32),
+    )
     zero_i, zero_f = jnp.asarray(0, jnp.int32), jnp.asarray(0.0)
     return SlamState(
-        graph=graph, n_nodes=zero_i, n_edges=zero_i, edge_kind=jnp.zeros(m, jnp.int32), node_t=jnp.zeros(n),
-        node_odom=jnp.zeros((n, 3)), node_lo=jnp.zeros((n, 3)), node_lo_valid=jnp.zeros(n, bool),
-        node_twist=jnp.zeros((n, 3)), ranges=jnp.full((n, b), jnp.nan), valid=jnp.zeros((n, b), bool),
-        bearings=_f(bearings), lo_cov=jnp.zeros((3, 3)), lo_prev=jnp.zeros(3), t_prev=zero_f,
-        lo_ok=jnp.asarray(False), grid=init_grid(spec.grid), map_stale=jnp.asarray(False), loops=zero_i,
+        graph=graph,
+        n_nodes=zero_i,
+        n_edges=zero_i,
+        edge_kind=jnp.zeros(m, jnp.int32),
+        node_t=jnp.zeros(n),
+        node_odom=jnp.zeros((n, 3)),
+        node_lo=jnp.zeros((n, 3)),
+        node_lo_valid=jnp.zeros(n, bool),
+        node_twist=jnp.zeros((n, 3)),
+        ranges=jnp.full((n, b), jnp.nan),
+        valid=jnp.zeros((n, b), bool),
+        bearings=_f(bearings),
+        lo_cov=jnp.zeros((3, 3)),
+        lo_prev=jnp.zeros(3),
+        t_prev=zero_f,
+        lo_ok=jnp.asarray(False),
+        grid=init_grid(spec.grid),
+        map_stale=jnp.asarray(False),
+        loops=zero_i,
         full=jnp.asarray(False),
-    )  # fmt: skip
+    )
 
 
 def _sensor(params: SlamParams, base: Float[Array, "*n 3"]) -> Float[Array, "*n 3"]:
@@ -243,11 +263,16 @@ def _fuse(params: SlamParams, x_i, z_match, info_match, z_leg, info_leg) -> Floa
     """The new node's pose from its match edge (Cauchy) and leg-odometry edge, node i held."""
     z = jnp.stack([z_match, z_leg])
     g = PoseGraph(
-        poses=jnp.stack([x_i, _compose(x_i, z_match)]), node_mask=jnp.ones(2, bool), fixed=jnp.array([True, False]),
-        edge_i=jnp.zeros(2, jnp.int32), edge_j=jnp.ones(2, jnp.int32), measurement=z,
-        information=jnp.stack([info_match, info_leg]), edge_mask=jnp.ones(2, bool),
+        poses=jnp.stack([x_i, _compose(x_i, z_match)]),
+        node_mask=jnp.ones(2, bool),
+        fixed=jnp.array([True, False]),
+        edge_i=jnp.zeros(2, jnp.int32),
+        edge_j=jnp.ones(2, jnp.int32),
+        measurement=z,
+        information=jnp.stack([info_match, info_leg]),
+        edge_mask=jnp.ones(2, bool),
         robust=jnp.array([ROBUST_CAUCHY, ROBUST_NONE], jnp.int32),
-    )  # fmt: skip
+    )
     out, _ = optimize(g, params.solver)
     return out.poses[1]
 
@@ -283,14 +308,34 @@ def _add_node(spec: SlamSpec, params: SlamParams, state: SlamState, pred, inp: S
     g = state.graph
     g = eqx.tree_at(lambda g: (g.poses, g.node_mask), g, (g.poses.at[j].set(pose), g.node_mask.at[j].set(True)))
     state = eqx.tree_at(
-        lambda s: (s.graph, s.n_nodes, s.node_t, s.node_odom, s.node_lo, s.node_lo_valid, s.node_twist, s.ranges,
-                   s.valid, s.lo_cov, s.lo_ok),
+        lambda s: (
+            s.graph,
+            s.n_nodes,
+            s.node_t,
+            s.node_odom,
+            s.node_lo,
+            s.node_lo_valid,
+            s.node_twist,
+            s.ranges,
+            s.valid,
+            s.lo_cov,
+            s.lo_ok,
+        ),
         state,
-        (g, j + 1, state.node_t.at[j].set(inp.t), state.node_odom.at[j].set(inp.odom),
-         state.node_lo.at[j].set(inp.lo_pose), state.node_lo_valid.at[j].set(inp.lo_valid),
-         state.node_twist.at[j].set(inp.lo_twist), state.ranges.at[j].set(inp.ranges),
-         state.valid.at[j].set(inp.valid), jnp.zeros((3, 3)), inp.lo_valid),
-    )  # fmt: skip
+        (
+            g,
+            j + 1,
+            state.node_t.at[j].set(inp.t),
+            state.node_odom.at[j].set(inp.odom),
+            state.node_lo.at[j].set(inp.lo_pose),
+            state.node_lo_valid.at[j].set(inp.lo_valid),
+            state.node_twist.at[j].set(inp.lo_twist),
+            state.ranges.at[j].set(inp.ranges),
+            state.valid.at[j].set(inp.valid),
+            jnp.zeros((3, 3)),
+            inp.lo_valid,
+        ),
+    )
     link_kind = jnp.where(good, EDGE_MATCH, EDGE_ODOMETRY)
     link_robust = jnp.where(good, ROBUST_CAUCHY, ROBUST_NONE)
     state = _add_edge(state, last, j, z_link, info_link, link_robust, link_kind, ~first)
@@ -314,8 +359,14 @@ def _close_loop(spec: SlamSpec, params: SlamParams, state: SlamState, j, respons
     L = se2(params.T_base_laser)
     z = xy_theta(L @ se2(cand.T_i_j) @ L.inverse())
     state = _add_edge(
-        state, cand.i, j, z, _information(_to_base_cov(params, cand.covariance) * params.match_cov_scale), ROBUST_NONE,
-        EDGE_LOOP, cand.accept,
+        state,
+        cand.i,
+        j,
+        z,
+        _information(_to_base_cov(params, cand.covariance) * params.match_cov_scale),
+        ROBUST_NONE,
+        EDGE_LOOP,
+        cand.accept,
     )
     # Robots without a closure run no solver iteration (the loop's trip count is 0), also under vmap.
     trips = jnp.where(cand.accept, params.solver.max_iterations, 0)

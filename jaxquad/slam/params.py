@@ -17,13 +17,29 @@ from jaxquad.kernels.scan_grid import MatchParams, MatchSpec, cells_for_range
 from jaxquad.slam.online import SlamParams, SlamSpec
 
 DEFAULTS_FILE = Path(__file__).with_name("slam.yaml")
-_INTEGER = ("scan_buffer_size", "loop_match_minimum_chain_size", "loop_chain_scans", "node_capacity",
-            "solver_max_iterations")  # fmt: skip
-_FRACTION = ("link_match_minimum_response_fine", "loop_match_minimum_response_coarse",
-             "loop_match_minimum_response_fine", "loop_ambiguity_ratio")  # fmt: skip
-_MAY_BE_ZERO = ("minimum_travel_distance", "minimum_travel_heading", "minimum_time_interval",
-                "link_match_minimum_response_fine", "loop_match_minimum_response_coarse",
-                "loop_match_minimum_response_fine", "loop_minimum_travel", "loop_ambiguity_distance")  # fmt: skip
+_INTEGER = (
+    "scan_buffer_size",
+    "loop_match_minimum_chain_size",
+    "loop_chain_scans",
+    "node_capacity",
+    "solver_max_iterations",
+)
+_FRACTION = (
+    "link_match_minimum_response_fine",
+    "loop_match_minimum_response_coarse",
+    "loop_match_minimum_response_fine",
+    "loop_ambiguity_ratio",
+)
+_MAY_BE_ZERO = (
+    "minimum_travel_distance",
+    "minimum_travel_heading",
+    "minimum_time_interval",
+    "link_match_minimum_response_fine",
+    "loop_match_minimum_response_coarse",
+    "loop_match_minimum_response_fine",
+    "loop_minimum_travel",
+    "loop_ambiguity_distance",
+)
 
 
 def _read(path: Path) -> dict:
@@ -76,40 +92,57 @@ def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=
     window = max(1, round(v["correlation_search_space_dimension"] / 2 / res))
     deg = math.degrees
     match = MatchSpec(
-        cells=cells_for_range(v["match_max_range"], res, window), resolution=res, window_cells=window,
-        angle_window_deg=deg(v["coarse_search_angle_offset"]), angle_step_deg=deg(v["coarse_angle_resolution"]),
+        cells=cells_for_range(v["match_max_range"], res, window),
+        resolution=res,
+        window_cells=window,
+        angle_window_deg=deg(v["coarse_search_angle_offset"]),
+        angle_step_deg=deg(v["coarse_angle_resolution"]),
         fine_angle_step_deg=deg(v["fine_search_angle_offset"]),
-    )  # fmt: skip
+    )
     loop_res = v["loop_search_space_resolution"]
     loop_window = max(1, round(v["loop_search_space_dimension"] / 2 / loop_res))
     coarse = MatchSpec.loop(
-        cells=cells_for_range(v["match_max_range"], loop_res, loop_window), resolution=loop_res,
-        window_cells=loop_window, angle_window_deg=match.angle_window_deg, angle_step_deg=match.angle_step_deg,
+        cells=cells_for_range(v["match_max_range"], loop_res, loop_window),
+        resolution=loop_res,
+        window_cells=loop_window,
+        angle_window_deg=match.angle_window_deg,
+        angle_step_deg=match.angle_step_deg,
         fine_angle_step_deg=match.fine_angle_step_deg,
-    )  # fmt: skip
+    )
     spec = SlamSpec(
-        grid=grid, nodes=v["node_capacity"], buffer=v["scan_buffer_size"], match=match,
-        loop=LoopSpec(coarse=coarse, fine=match, chain=v["loop_chain_scans"]), lo_constraints=lo_constraints,
-    )  # fmt: skip
+        grid=grid,
+        nodes=v["node_capacity"],
+        buffer=v["scan_buffer_size"],
+        match=match,
+        loop=LoopSpec(coarse=coarse, fine=match, chain=v["loop_chain_scans"]),
+        lo_constraints=lo_constraints,
+    )
     f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     mp = MatchParams(smear_sigma=f(v["correlation_search_space_smear_deviation"]), range_max=f(v["match_max_range"]))
     params = SlamParams(
         match=mp,
         loop=LoopParams(
-            match=mp, search_radius=f(v["loop_search_maximum_distance"]),
-            min_chain=jnp.asarray(v["loop_match_minimum_chain_size"]), min_travel=f(v["loop_minimum_travel"]),
+            match=mp,
+            search_radius=f(v["loop_search_maximum_distance"]),
+            min_chain=jnp.asarray(v["loop_match_minimum_chain_size"]),
+            min_travel=f(v["loop_minimum_travel"]),
             coarse_response=f(v["loop_match_minimum_response_coarse"]),
             fine_response=f(v["loop_match_minimum_response_fine"]),
-            ambiguity_distance=f(v["loop_ambiguity_distance"]), ambiguity_ratio=f(v["loop_ambiguity_ratio"]),
+            ambiguity_distance=f(v["loop_ambiguity_distance"]),
+            ambiguity_ratio=f(v["loop_ambiguity_ratio"]),
         ),
         occupancy=OccupancyParams(range_max=f(v["max_laser_range"])),
         solver=SolverParams(robust_width=f(v["robust_width"]), max_iterations=jnp.asarray(v["solver_max_iterations"])),
-        T_base_laser=f(T_base_laser), min_travel=f(v["minimum_travel_distance"]),
-        min_rotation=f(v["minimum_travel_heading"]), min_interval=f(v["minimum_time_interval"]),
+        T_base_laser=f(T_base_laser),
+        min_travel=f(v["minimum_travel_distance"]),
+        min_rotation=f(v["minimum_travel_heading"]),
+        min_interval=f(v["minimum_time_interval"]),
         buffer_distance=f(v["scan_buffer_maximum_scan_distance"]),
-        link_min_response=f(v["link_match_minimum_response_fine"]), match_cov_scale=f(v["match_covariance_scale"]),
+        link_min_response=f(v["link_match_minimum_response_fine"]),
+        match_cov_scale=f(v["match_covariance_scale"]),
         odom_fallback_std=f([v["odom_fallback_std_xy"], v["odom_fallback_std_xy"], v["odom_fallback_std_yaw"]]),
         velocity_cov=f([v["leg_velocity_var_xy"], v["leg_velocity_var_xy"], v["leg_velocity_var_yaw"]]),
-        velocity_max_dt=f(v["leg_velocity_max_dt"]), lo_correlation_s=f(v["leg_correlation_time"]),
-    )  # fmt: skip
+        velocity_max_dt=f(v["leg_velocity_max_dt"]),
+        lo_correlation_s=f(v["leg_correlation_time"]),
+    )
     return spec, params

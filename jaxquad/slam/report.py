@@ -22,8 +22,12 @@ from jaxquad.kernels.occupancy import GridSpec
 from jaxquad.slam import online
 from jaxquad.slam.mapping import to_occupancy_map
 
-EDGE_KIND_NAMES = {online.EDGE_MATCH: "match", online.EDGE_ODOMETRY: "odometry", online.EDGE_LEG: "leg_odometry",
-                   online.EDGE_LOOP: "loop"}  # fmt: skip
+EDGE_KIND_NAMES = {
+    online.EDGE_MATCH: "match",
+    online.EDGE_ODOMETRY: "odometry",
+    online.EDGE_LEG: "leg_odometry",
+    online.EDGE_LOOP: "loop",
+}
 
 
 def _quat_yaw(theta: np.ndarray) -> np.ndarray:
@@ -45,11 +49,13 @@ def graph_of(state) -> G2oGraph:
     g = state.graph
     keep = np.asarray(g.edge_mask[:m], bool)
     return G2oGraph(
-        ids=np.arange(n), poses=np.asarray(g.poses[:n], np.float64), fixed_ids=np.array([0]),
+        ids=np.arange(n),
+        poses=np.asarray(g.poses[:n], np.float64),
+        fixed_ids=np.array([0]),
         edge_ids=np.stack([np.asarray(g.edge_i[:m])[keep], np.asarray(g.edge_j[:m])[keep]], 1),
         measurement=np.asarray(g.measurement[:m], np.float64)[keep],
         information=np.asarray(g.information[:m], np.float64)[keep],
-    )  # fmt: skip
+    )
 
 
 def _trajectory_scores(t: np.ndarray, pose: np.ndarray, gt: np.ndarray, valid: np.ndarray) -> dict:
@@ -67,19 +73,27 @@ def _trajectory_scores(t: np.ndarray, pose: np.ndarray, gt: np.ndarray, valid: n
 
 
 def robot_report(
-    spec: online.SlamSpec, t: np.ndarray, state, out, final: np.ndarray, x: dict, i: int,
+    spec: online.SlamSpec,
+    t: np.ndarray,
+    state,
+    out,
+    final: np.ndarray,
+    x: dict,
+    i: int,
     true_map=None,
-) -> dict:  # fmt: skip
+) -> dict:
     """Counts and (with ground truth) scores of robot i; `state`/`out` hold that robot's arrays."""
     kinds = np.asarray(state.edge_kind[: int(state.n_edges)])
     mask = np.asarray(state.graph.edge_mask[: int(state.n_edges)], bool)
     rep = {
-        "scans": int(len(t)), "nodes": int(state.n_nodes), "node_capacity": spec.nodes,
+        "scans": int(len(t)),
+        "nodes": int(state.n_nodes),
+        "node_capacity": spec.nodes,
         "capacity_reached": bool(state.full),
         "edges": {name: int(((kinds == k) & mask).sum()) for k, name in EDGE_KIND_NAMES.items()},
         "loop_closures": int(state.loops),
         "match_response_mean": float(np.nanmean(out.response)) if np.any(np.isfinite(out.response)) else None,
-    }  # fmt: skip
+    }
     if "gt" in x:
         gt, valid = x["gt"][i], np.asarray(x["valid"][i], bool)
         rep["scores"] = {
@@ -111,8 +125,9 @@ def write_robot(folder: Path, grid: GridSpec, t: np.ndarray, state, out, final: 
     write_g2o(folder / "graph.g2o", graph_of(state))
 
 
-def draw_map_vs_truth(path: Path, grid: GridSpec, state, final: np.ndarray, odom: np.ndarray, gt: np.ndarray | None,
-                      true_map) -> None:  # fmt: skip
+def draw_map_vs_truth(
+    path: Path, grid: GridSpec, state, final: np.ndarray, odom: np.ndarray, gt: np.ndarray | None, true_map
+) -> None:
     """The SLAM map (left) and the true map (right, with the SLAM's occupied cells in red), with the final
     SLAM, odometry and true trajectories."""
     import matplotlib
@@ -128,9 +143,19 @@ def draw_map_vs_truth(path: Path, grid: GridSpec, state, final: np.ndarray, odom
     res, ox, oy = true_map.resolution, true_map.origin[0], true_map.origin[1]
     extent = [ox, ox + true_map.grid.shape[1] * res, oy, oy + true_map.grid.shape[0] * res]
     shown = np.where(est.grid < 0, 0.5, 1.0 - est.grid / 100.0)  # unknown grey, free white, occupied black
-    axes[0].imshow(shown, origin="lower", cmap="gray", vmin=0, vmax=1, extent=[
-        grid.origin_x, grid.origin_x + grid.cols * grid.resolution, grid.origin_y,
-        grid.origin_y + grid.rows * grid.resolution])  # fmt: skip
+    axes[0].imshow(
+        shown,
+        origin="lower",
+        cmap="gray",
+        vmin=0,
+        vmax=1,
+        extent=[
+            grid.origin_x,
+            grid.origin_x + grid.cols * grid.resolution,
+            grid.origin_y,
+            grid.origin_y + grid.rows * grid.resolution,
+        ],
+    )
     axes[0].set_title("SLAM map (final poses)")
     overlay = np.ones(true_map.grid.shape + (3,))
     overlay[true_map.grid > 65] = (0.2, 0.2, 0.2)

@@ -34,10 +34,16 @@ def laser_log_inputs(log: LaserLog) -> dict:
         odom = np.stack([np.interp(log.scan_t, log.odom_t, c) for c in (*log.odom_xytheta[:, :2].T, yaw)], -1)
     S = log.n_scans
     x = {
-        "t": log.scan_t, "odom": odom[None], "ranges": log.ranges[None], "bearings": log.bearings,
-        "T_base_laser": log.T_base_laser_xytheta, "valid": np.ones((1, S), bool), "lo_twist": np.zeros((1, S, 3)),
-        "lo_twist_cov": np.zeros((1, S, 3, 3)), "lo_valid": np.zeros((1, S), bool),
-    }  # fmt: skip
+        "t": log.scan_t,
+        "odom": odom[None],
+        "ranges": log.ranges[None],
+        "bearings": log.bearings,
+        "T_base_laser": log.T_base_laser_xytheta,
+        "valid": np.ones((1, S), bool),
+        "lo_twist": np.zeros((1, S, 3)),
+        "lo_twist_cov": np.zeros((1, S, 3, 3)),
+        "lo_valid": np.zeros((1, S), bool),
+    }
     if log.gt_xytheta is not None:
         x["gt"] = log.gt_xytheta[None]
     return x
@@ -71,11 +77,15 @@ def _inputs(x: dict, start: int, stop: int, size: int) -> online.SlamInputs:
     ok = valid[..., None] & ~np.isnan(r)
     f = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
     return online.SlamInputs(
-        t=f(t), odom=f(take(x["odom"], np.nan)), ranges=f(np.where(ok, r, np.nan)), valid=jnp.asarray(ok),
+        t=f(t),
+        odom=f(take(x["odom"], np.nan)),
+        ranges=f(np.where(ok, r, np.nan)),
+        valid=jnp.asarray(ok),
         lo_pose=f(take(x["odom"] if "lo_pose" not in x else x["lo_pose"], np.nan)),
-        lo_twist=f(take(x["lo_twist"], 0.0)), lo_twist_cov=f(take(x["lo_twist_cov"], 0.0)),
+        lo_twist=f(take(x["lo_twist"], 0.0)),
+        lo_twist_cov=f(take(x["lo_twist_cov"], 0.0)),
         lo_valid=jnp.asarray(take(x["lo_valid"], False) & valid),
-    )  # fmt: skip
+    )
 
 
 @functools.cache

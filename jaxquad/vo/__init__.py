@@ -34,4 +34,4 @@ __all__ = [
     "step",
     "visual_odometry",
     "vo_inputs",
-]  # fmt: skip
+]

@@ -24,14 +24,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="output folder (created; replaced only if it holds an earlier run)",
     )
     parser.add_argument(
-        "--leg-odometry", choices=COUPLINGS, default="guess+restart",
+        "--leg-odometry",
+        choices=COUPLINGS,
+        default="guess+restart",
         help="coupling: off = constant-velocity guess, restart at the last pose (RTAB-Map's default); guess = leg "
         "motion as guess and translation prior; guess+restart = also restart from the leg odometry (default)",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--contacts", choices=("observer", "mixed", "sensor", "truth"), default="mixed",
+        "--contacts",
+        choices=("observer", "mixed", "sensor", "truth"),
+        default="mixed",
         help="contact source of the leg odometry (default mixed)",
-    )  # fmt: skip
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -43,8 +47,12 @@ def run(args: argparse.Namespace) -> int:
     with progress_bar("vo", "robot") as progress:
         summary = run_vo(args.log, args.out, args.leg_odometry, args.contacts, progress)
     robots = summary["robots"]
-    brief = {"robots": len(robots), "coupling": args.leg_odometry, "out": str(args.out),
-             "tracking_losses": sum(r["tracking_losses"] for r in robots)}  # fmt: skip
+    brief = {
+        "robots": len(robots),
+        "coupling": args.leg_odometry,
+        "out": str(args.out),
+        "tracking_losses": sum(r["tracking_losses"] for r in robots),
+    }
     ates = [
         r["scores"]["vo"]["trajectory"]["ate"]["rmse"]
         for r in robots

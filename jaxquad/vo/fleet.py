@@ -72,8 +72,9 @@ def vo_inputs(log: Mapping, p_leg: np.ndarray, q_leg: np.ndarray, R_base_imu: np
     idx = frame_samples(t, np.asarray(log["depth_t"], np.float64))
     T_bc = np.asarray(log["T_base_camera"], np.float64)
     R_imu_cam = np.asarray(R_base_imu, np.float64).T @ T_bc[:3, :3]
-    R = _gyro_rotations(jnp.asarray(t - t[0], jnp.float32), jnp.asarray(gyro), jnp.asarray(idx),
-                        jnp.asarray(R_imu_cam, jnp.float32))  # fmt: skip
+    R = _gyro_rotations(
+        jnp.asarray(t - t[0], jnp.float32), jnp.asarray(gyro), jnp.asarray(idx), jnp.asarray(R_imu_cam, jnp.float32)
+    )
     q = jnp.asarray(np.asarray(q_leg, np.float32)[:, idx])
     p = jnp.asarray(np.asarray(p_leg, np.float32)[:, idx])
     T_leg = jax.vmap(jax.vmap(lambda q, p: SE3.from_rotation_and_translation(SO3(q), p).as_matrix()))(q, p)
@@ -94,9 +95,15 @@ def _fleet_fn():
 
 
 def visual_odometry(
-    log: Mapping, p_leg: np.ndarray, q_leg: np.ndarray, R_base_imu: np.ndarray, coupling: str = "guess+restart",
-    params: VoParams | None = None, chunk: int = 64, progress=None,
-) -> VoResult:  # fmt: skip
+    log: Mapping,
+    p_leg: np.ndarray,
+    q_leg: np.ndarray,
+    R_base_imu: np.ndarray,
+    coupling: str = "guess+restart",
+    params: VoParams | None = None,
+    chunk: int = 64,
+    progress=None,
+) -> VoResult:
     """Depth odometry of every robot of `log`, guided by the leg odometry (p_leg (N, T, 3) m,
     q_leg (N, T, 4) w x y z at the log's samples). Robots run `chunk` at a time (one compile)."""
     if params is None:
@@ -119,8 +126,13 @@ def visual_odometry(
     out = jax.tree.map(lambda *x: np.concatenate(x), *outs)
     T = out.T_world_base
     q = np.asarray(jax.vmap(jax.vmap(lambda R: SO3.from_matrix(R).wxyz))(jnp.asarray(T[..., :3, :3])))
-    return VoResult(t=np.asarray(log["depth_t"], np.float64), coupling=params.coupling, p_world_base=T[..., :3, 3],
-                    q_world_base=q, output=out)  # fmt: skip
+    return VoResult(
+        t=np.asarray(log["depth_t"], np.float64),
+        coupling=params.coupling,
+        p_world_base=T[..., :3, 3],
+        q_world_base=q,
+        output=out,
+    )
 
 
 def _scores(result: VoResult, i: int, gt: np.ndarray, idx: np.ndarray, p_leg, q_leg) -> dict:
@@ -137,11 +149,15 @@ def _scores(result: VoResult, i: int, gt: np.ndarray, idx: np.ndarray, p_leg, q_
         "q_world_base": np.asarray(q_leg)[i, idx],
     }
     return {
-        "vo": {"trajectory": trajectory_metrics(result.t, est, gt, valid),
-               "drift": odometry_scores(est["p_world_base"], est["q_world_base"], gt, valid)},
-        "leg_odometry": {"trajectory": trajectory_metrics(result.t, leg, gt, valid),
-                         "drift": odometry_scores(leg["p_world_base"], leg["q_world_base"], gt, valid)},
-    }  # fmt: skip
+        "vo": {
+            "trajectory": trajectory_metrics(result.t, est, gt, valid),
+            "drift": odometry_scores(est["p_world_base"], est["q_world_base"], gt, valid),
+        },
+        "leg_odometry": {
+            "trajectory": trajectory_metrics(result.t, leg, gt, valid),
+            "drift": odometry_scores(leg["p_world_base"], leg["q_world_base"], gt, valid),
+        },
+    }
 
 
 def score_vo(log: Mapping, result: VoResult, p_leg: np.ndarray, q_leg: np.ndarray) -> list[dict]:
@@ -154,10 +170,15 @@ def score_vo(log: Mapping, result: VoResult, p_leg: np.ndarray, q_leg: np.ndarra
     robots = []
     for i in range(result.p_world_base.shape[0]):
         lost = np.asarray(out.tracking_lost[i])
-        entry = {"name": f"robot_{i:03d}" if fleet else "robot", "tracking_losses": int(lost.sum()),
-                 "loss_rate": float(lost.mean()), "keyframes": int(np.asarray(out.new_keyframe[i]).sum()),
-                 "median_inliers": float(np.median(out.n_inliers[i])), "median_min_eig": float(np.median(out.min_eig[i])),
-                 "median_rmse_m": float(np.median(out.rmse[i]))}  # fmt: skip
+        entry = {
+            "name": f"robot_{i:03d}" if fleet else "robot",
+            "tracking_losses": int(lost.sum()),
+            "loss_rate": float(lost.mean()),
+            "keyframes": int(np.asarray(out.new_keyframe[i]).sum()),
+            "median_inliers": float(np.median(out.n_inliers[i])),
+            "median_min_eig": float(np.median(out.min_eig[i])),
+            "median_rmse_m": float(np.median(out.rmse[i])),
+        }
         if "gt_pose" in log:
             gt = np.asarray(log["gt_pose"])[i] if fleet else np.asarray(log["gt_pose"])
             entry["scores"] = _scores(result, i, gt[idx], idx, p_leg, q_leg)
@@ -205,8 +226,15 @@ def run_vo(
         coupling,
         progress=progress,
     )
-    summary = {"kind": SUMMARY_KIND, "log": source, "robot": robot.name, "coupling": coupling, "contacts": contacts,
-               "frames": int(result.t.size), "robots": score_vo(log, result, est.p_world_base, est.q_world_base)}  # fmt: skip
+    summary = {
+        "kind": SUMMARY_KIND,
+        "log": source,
+        "robot": robot.name,
+        "coupling": coupling,
+        "contacts": contacts,
+        "frames": int(result.t.size),
+        "robots": score_vo(log, result, est.p_world_base, est.q_world_base),
+    }
     with atomic_dir(out_dir) as tmp:
         for i, entry in enumerate(summary["robots"]):
             traj = TumTrajectory(

@@ -54,9 +54,16 @@ class VoParams(eqx.Module):
     def default(cls, K, T_base_camera, coupling: str = "guess+restart") -> VoParams:
         f = lambda x: jnp.asarray(x, jnp.float32)
         return cls(
-            icp=IcpParams.default(), min_inliers=f(300.0), min_eig=f(2e-3), max_rmse=f(0.03),
-            keyframe_overlap=f(0.6), sigma_floor=f(0.005), K=f(K), T_base_camera=f(T_base_camera), coupling=coupling,
-        )  # fmt: skip
+            icp=IcpParams.default(),
+            min_inliers=f(300.0),
+            min_eig=f(2e-3),
+            max_rmse=f(0.03),
+            keyframe_overlap=f(0.6),
+            sigma_floor=f(0.005),
+            K=f(K),
+            T_base_camera=f(T_base_camera),
+            coupling=coupling,
+        )
 
 
 class VoInputs(eqx.Module):
@@ -98,8 +105,15 @@ def init(params: VoParams, depth: Float[Array, "H W"], T_world_base: Float[Array
     T_world_cam = T_world_base @ params.T_base_camera
     eye = jnp.eye(4, dtype=T_world_cam.dtype)
     kf = depth_frame(depth, params.K, len(params.iterations), params.icp.max_normal_jump)
-    return VoState(keyframe=kf, T_world_kf=T_world_cam, T_kf_cur=eye, T_prev_cur=eye, T_world_base_leg=T_world_base,
-                   T_world_cam_good=T_world_cam, T_world_base_leg_good=T_world_base)  # fmt: skip
+    return VoState(
+        keyframe=kf,
+        T_world_kf=T_world_cam,
+        T_kf_cur=eye,
+        T_prev_cur=eye,
+        T_world_base_leg=T_world_base,
+        T_world_cam_good=T_world_cam,
+        T_world_base_leg_good=T_world_base,
+    )
 
 
 def _select(c, a, b):
@@ -145,12 +159,17 @@ def step(params: VoParams, state: VoState, inputs: VoInputs) -> tuple[VoState, V
         T_world_base_leg=inputs.T_world_base_leg,
         T_world_cam_good=jnp.where(lost, state.T_world_cam_good, T_world_cam),
         T_world_base_leg_good=jnp.where(lost, state.T_world_base_leg_good, inputs.T_world_base_leg),
-    )  # fmt: skip
+    )
     sigma2 = jnp.maximum(aln.rmse, params.sigma_floor) ** 2
     out = VoOutput(
-        T_world_base=T_world_cam @ _inv(T_bc), information=aln.H_total / sigma2, n_inliers=aln.n_inliers,
-        min_eig=aln.min_eig, rmse=aln.rmse, tracking_lost=lost, new_keyframe=new_kf,
-    )  # fmt: skip
+        T_world_base=T_world_cam @ _inv(T_bc),
+        information=aln.H_total / sigma2,
+        n_inliers=aln.n_inliers,
+        min_eig=aln.min_eig,
+        rmse=aln.rmse,
+        tracking_lost=lost,
+        new_keyframe=new_kf,
+    )
     return new_state, out
 
 

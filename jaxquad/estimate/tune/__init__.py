@@ -10,16 +10,42 @@ from jaxquad.estimate.tune.gradient import GradientResult, LossTerms, Unconstrai
 from jaxquad.estimate.tune.grid import GridResult, GridSpec, grid_counts, grid_search, pick_best
 from jaxquad.estimate.tune.observer_inputs import ContactTruth, ObserverInputs, observer_inputs, select_robots
 from jaxquad.estimate.tune.observer_scan import (
-    Counts, delay_cost, f1_of, fleet_scores, observer_counts, run_observer,
-)  # fmt: skip
+    Counts,
+    delay_cost,
+    f1_of,
+    fleet_scores,
+    observer_counts,
+    run_observer,
+)
 from jaxquad.estimate.tune.run import split_robots, tune_fleet
 from jaxquad.io.params import read_observer_params, write_observer_params
 
 save_params = write_observer_params
 
 __all__ = [
-    "ContactTruth", "Counts", "GradientResult", "GridResult", "GridSpec", "LossTerms", "ObserverInputs",
-    "Unconstrained", "delay_cost", "f1_of", "fleet_scores", "grid_counts", "grid_search", "gradient_tune",
-    "observer_counts", "observer_inputs", "pick_best", "read_observer_params", "run_observer", "save_params",
-    "select_robots", "split_robots", "surrogate_loss", "tune_fleet", "write_observer_params",
-]  # fmt: skip
+    "ContactTruth",
+    "Counts",
+    "GradientResult",
+    "GridResult",
+    "GridSpec",
+    "LossTerms",
+    "ObserverInputs",
+    "Unconstrained",
+    "delay_cost",
+    "f1_of",
+    "fleet_scores",
+    "grid_counts",
+    "grid_search",
+    "gradient_tune",
+    "observer_counts",
+    "observer_inputs",
+    "pick_best",
+    "read_observer_params",
+    "run_observer",
+    "save_params",
+    "select_robots",
+    "split_robots",
+    "surrogate_loss",
+    "tune_fleet",
+    "write_observer_params",
+]

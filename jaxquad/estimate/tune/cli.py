@@ -26,31 +26,48 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     src = parser.add_mutually_exclusive_group(required=True)
     src.add_argument("--log", help="fleet or single-robot log (.npz) with tau, qd, gt_pose, gt_contact, gt_force")
     src.add_argument("--simulate", action="store_true", help="simulate a fleet first (options below)")
-    parser.add_argument("--method", choices=("grid", "gradient"), required=True,
-                        help="grid search over five axes, or gradient descent on a smooth surrogate loss")  # fmt: skip
+    parser.add_argument(
+        "--method",
+        choices=("grid", "gradient"),
+        required=True,
+        help="grid search over five axes, or gradient descent on a smooth surrogate loss",
+    )
     parser.add_argument("--out", required=True, help="params file to write (.yaml, .yml or .json)")
     parser.add_argument("--mode", choices=("mixed", "plain"), default="mixed", help="observer mode (default mixed)")
-    parser.add_argument("--holdout", type=float, default=0.25,
-                        help="fraction of robots held out for scoring (default 0.25; a single-robot log is tuned and "
-                        "scored on itself)")  # fmt: skip
+    parser.add_argument(
+        "--holdout",
+        type=float,
+        default=0.25,
+        help="fraction of robots held out for scoring (default 0.25; a single-robot log is tuned and scored on itself)",
+    )
     grid = parser.add_argument_group("grid search")
-    grid.add_argument("--grid-size", type=_grid_size, default=4,
-                      help="points per axis (bandwidth, alpha front, alpha rear, threshold on, off/on ratio): N or N,N,N,N,N (default 4)")  # fmt: skip
-    grid.add_argument("--chunk", type=int, default=256,
-                      help="configurations per vmapped call, rounded up to a multiple of the devices (default 256)")  # fmt: skip
+    grid.add_argument(
+        "--grid-size",
+        type=_grid_size,
+        default=4,
+        help="points per axis (bandwidth, alpha front, alpha rear, threshold on, off/on ratio): N or N,N,N,N,N (default 4)",
+    )
+    grid.add_argument(
+        "--chunk",
+        type=int,
+        default=256,
+        help="configurations per vmapped call, rounded up to a multiple of the devices (default 256)",
+    )
     add_devices_argument(grid, "grid's configurations (and with --simulate the robots)")
     grad = parser.add_argument_group("gradient tuning")
     grad.add_argument("--steps", type=int, default=200, help="maximum optimizer steps (default 200)")
     grad.add_argument("--lr", type=float, default=0.05, help="Adam learning rate (default 0.05)")
-    grad.add_argument("--patience", type=int, default=25,
-                      help="stop after this many steps without improvement (default 25)")  # fmt: skip
+    grad.add_argument(
+        "--patience", type=int, default=25, help="stop after this many steps without improvement (default 25)"
+    )
     sim = parser.add_argument_group("with --simulate")
     sim.add_argument("--robot", default="go2", help="go2, badger, or a path to an MJCF file (default go2)")
     sim.add_argument("--world", default="house", choices=("house", "warehouse"), help="generated world (default house)")
     sim.add_argument("--robots", type=int, default=8, help="fleet size (default 8)")
     sim.add_argument("--seconds", type=float, default=10.0, help="simulated time per robot, s (default 10)")
-    sim.add_argument("--style", default="aggressive", choices=("calm", "aggressive"),
-                     help="gait style (default aggressive)")  # fmt: skip
+    sim.add_argument(
+        "--style", default="aggressive", choices=("calm", "aggressive"), help="gait style (default aggressive)"
+    )
     sim.add_argument("--seed", type=int, default=0, help="random seed of worlds, routes and noise (default 0)")
 
 
@@ -90,8 +107,15 @@ def run(args: argparse.Namespace) -> int:
                 raise ValueError("--robots must be >= 1 and --seconds positive")
             if jax.process_count() > 1:
                 raise ValueError("--simulate runs in one process; simulate first, then tune --log in several")
-            config = FleetConfig(robot=args.robot, world=args.world, n_robots=args.robots, style=args.style,
-                                 seed=args.seed, depth=False, devices=args.devices)  # fmt: skip
+            config = FleetConfig(
+                robot=args.robot,
+                world=args.world,
+                n_robots=args.robots,
+                style=args.style,
+                seed=args.seed,
+                depth=False,
+                devices=args.devices,
+            )
             log_path = simulate(config, args.seconds, tmp)
             simulated = {"config": dataclasses.asdict(config), "seconds": args.seconds}
             walls["simulate_s"] = time.perf_counter() - t0
@@ -126,11 +150,18 @@ def run(args: argparse.Namespace) -> int:
     walls["total_s"] = time.perf_counter() - t0
     if not parallel.is_main():  # every process searched the same grid; process 0 writes
         return 0
-    summary = {"log": None if args.simulate else str(args.log), "simulated": simulated, "robot": robot.name,
-               "holdout_requested": args.holdout, "observer_inputs": input_options}
+    summary = {
+        "log": None if args.simulate else str(args.log),
+        "simulated": simulated,
+        "robot": robot.name,
+        "holdout_requested": args.holdout,
+        "observer_inputs": input_options,
+    }
     summary |= tuned | {"walls": walls}
-    header = (f"jaxquad tune --method {args.method}: F1 {summary['paper_train']['f1']:.4f} (paper defaults) -> "
-              f"{summary['tuned_train']['f1']:.4f} on {summary['robots_train']} training robot(s)")  # fmt: skip
+    header = (
+        f"jaxquad tune --method {args.method}: F1 {summary['paper_train']['f1']:.4f} (paper defaults) -> "
+        f"{summary['tuned_train']['f1']:.4f} on {summary['robots_train']} training robot(s)"
+    )
     tn.save_params(out, best, header=header)
     write_json(out.with_name(f"{out.stem}.summary.json"), summary)
     print(to_json(summary))

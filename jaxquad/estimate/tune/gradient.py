@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import equinox as eqx
 import jax
@@ -51,9 +51,12 @@ class Unconstrained(eqx.Module):
     def params(self, base: ObserverParams) -> ObserverParams:
         on = jax.nn.softplus(self.raw_threshold_on)
         return dataclasses.replace(
-            base, bandwidth=jnp.exp(self.log_bandwidth), alpha=jax.nn.sigmoid(self.logit_alpha),
-            threshold_on=on, threshold_off=on * jax.nn.sigmoid(self.logit_off_ratio),
-        )  # fmt: skip
+            base,
+            bandwidth=jnp.exp(self.log_bandwidth),
+            alpha=jax.nn.sigmoid(self.logit_alpha),
+            threshold_on=on,
+            threshold_off=on * jax.nn.sigmoid(self.logit_off_ratio),
+        )
 
 
 class LossTerms(eqx.Module):
@@ -71,17 +74,25 @@ def _loss_terms(params: ObserverParams, inputs: ObserverInputs, truth: ContactTr
         bce = -jnp.where(contact, jnp.log(soft), jnp.log1p(-soft))
         err = est.force_z_filtered - jnp.clip(force_z, 0.0, params.f_max)
         w = valid.astype(jnp.float32)
-        return LossTerms(acc.bce_sum + w * bce.sum(), acc.force_sq_sum + w * (err * err).sum(),
-                         acc.count + w * contact.shape[-1]), None  # fmt: skip
+        return LossTerms(
+            acc.bce_sum + w * bce.sum(), acc.force_sq_sum + w * (err * err).sum(), acc.count + w * contact.shape[-1]
+        ), None
 
     # Rematerialise each step's internals in the backward pass: memory grows with the carry only.
     reduce = jax.checkpoint(reduce)
-    return _observer_scan(params, inputs, LossTerms(zero, zero, zero), reduce, (truth.contact, truth.force_z, truth.valid))[0]
+    return _observer_scan(
+        params, inputs, LossTerms(zero, zero, zero), reduce, (truth.contact, truth.force_z, truth.valid)
+    )[0]
 
 
 def surrogate_loss(
-    u: Unconstrained, base: ObserverParams, inputs: ObserverInputs, truth: ContactTruth,
-    force_weight: float = 0.1, force_scale: float = 50.0, temperature: float = 2.0,
+    u: Unconstrained,
+    base: ObserverParams,
+    inputs: ObserverInputs,
+    truth: ContactTruth,
+    force_weight: float = 0.1,
+    force_scale: float = 50.0,
+    temperature: float = 2.0,
 ) -> Float[Array, ""]:
     """The gradient objective over a fleet (inputs with a leading robot axis)."""
     params = dataclasses.replace(u.params(base), soft_temperature=jnp.asarray(temperature, jnp.float32))
@@ -100,9 +111,17 @@ class GradientResult:
 
 
 def gradient_tune(
-    start: ObserverParams, inputs: ObserverInputs, truth: ContactTruth, steps: int = 200,
-    learning_rate: float = 0.05, patience: int = 25, tolerance: float = 1e-4, force_weight: float = 0.1,
-    force_scale: float = 50.0, temperature: float = 2.0, progress: Callable[[int, float], None] | None = None,
+    start: ObserverParams,
+    inputs: ObserverInputs,
+    truth: ContactTruth,
+    steps: int = 200,
+    learning_rate: float = 0.05,
+    patience: int = 25,
+    tolerance: float = 1e-4,
+    force_weight: float = 0.1,
+    force_scale: float = 50.0,
+    temperature: float = 2.0,
+    progress: Callable[[int, float], None] | None = None,
 ) -> GradientResult:
     """Adam on the surrogate loss from `start` (see the module docstring); the returned parameters
     are those of the lowest loss seen."""
@@ -113,8 +132,9 @@ def gradient_tune(
     t0 = time.perf_counter()
     opt = optax.adam(learning_rate)
     u = Unconstrained.from_params(start)
-    loss_fn = functools.partial(surrogate_loss, force_weight=force_weight, force_scale=force_scale,
-                                temperature=temperature)  # fmt: skip
+    loss_fn = functools.partial(
+        surrogate_loss, force_weight=force_weight, force_scale=force_scale, temperature=temperature
+    )
 
     @jax.jit
     def update(u, opt_state, inputs, truth):
@@ -140,5 +160,6 @@ def gradient_tune(
             break
         u = new_u
     best = best_u.params(start)
-    return GradientResult(best=best, loss=np.asarray(history), best_step=best_step, stopped=stopped,
-                          wall_s=time.perf_counter() - t0)  # fmt: skip
+    return GradientResult(
+        best=best, loss=np.asarray(history), best_step=best_step, stopped=stopped, wall_s=time.perf_counter() - t0
+    )

@@ -14,7 +14,7 @@ import dataclasses
 import functools
 import math
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -46,8 +46,13 @@ class GridSpec:
             raise ValueError(f"grid size must be one positive integer or five, got {size}")
         geo = lambda lo, hi, k: tuple(float(x) for x in (np.geomspace(lo, hi, k) if k > 1 else [math.sqrt(lo * hi)]))  # noqa: E731
         lin = tuple(float(x) for x in (np.linspace(0.3, 1.0, sizes[4]) if sizes[4] > 1 else [1.0]))
-        return cls(geo(10.0, 150.0, sizes[0]), geo(0.05, 1.0, sizes[1]), geo(0.05, 1.0, sizes[2]),
-                   geo(1.0, 40.0, sizes[3]), lin)  # fmt: skip
+        return cls(
+            geo(10.0, 150.0, sizes[0]),
+            geo(0.05, 1.0, sizes[1]),
+            geo(0.05, 1.0, sizes[2]),
+            geo(1.0, 40.0, sizes[3]),
+            lin,
+        )
 
     def __post_init__(self):
         for name in ("bandwidth", "alpha_front", "alpha_rear", "threshold_on", "off_ratio"):
@@ -63,8 +68,12 @@ class GridSpec:
 
     def params(self, base: ObserverParams) -> ObserverParams:
         """Every configuration as one ObserverParams with a leading axis C (other numbers from base)."""
-        b, af, ar, on, ratio = (a.ravel() for a in np.meshgrid(
-            self.bandwidth, self.alpha_front, self.alpha_rear, self.threshold_on, self.off_ratio, indexing="ij"))  # fmt: skip
+        b, af, ar, on, ratio = (
+            a.ravel()
+            for a in np.meshgrid(
+                self.bandwidth, self.alpha_front, self.alpha_rear, self.threshold_on, self.off_ratio, indexing="ij"
+            )
+        )
         n_feet = base.alpha.shape[0]
         half = n_feet // 2
         alpha = np.concatenate([np.repeat(af[:, None], half, 1), np.repeat(ar[:, None], n_feet - half, 1)], 1)
@@ -72,10 +81,12 @@ class GridSpec:
         tile = lambda x: jnp.broadcast_to(x, (c,) + x.shape)  # noqa: E731
         batched = jax.tree.map(tile, base)
         return dataclasses.replace(
-            batched, bandwidth=jnp.asarray(b, jnp.float32), alpha=jnp.asarray(alpha, jnp.float32),
+            batched,
+            bandwidth=jnp.asarray(b, jnp.float32),
+            alpha=jnp.asarray(alpha, jnp.float32),
             threshold_on=jnp.asarray(np.repeat(on[:, None], n_feet, 1), jnp.float32),
             threshold_off=jnp.asarray(np.repeat((on * ratio)[:, None], n_feet, 1), jnp.float32),
-        )  # fmt: skip
+        )
 
 
 def _grid_counts(params: ObserverParams, inputs: ObserverInputs, truth: ContactTruth) -> Counts:
@@ -91,8 +102,12 @@ def _sharded_counts(mesh):
 
 
 def grid_counts(
-    params: ObserverParams, inputs: ObserverInputs, truth: ContactTruth, chunk: int = 256,
-    progress: Callable[[int, int], None] | None = None, devices: int | None = None,
+    params: ObserverParams,
+    inputs: ObserverInputs,
+    truth: ContactTruth,
+    chunk: int = 256,
+    progress: Callable[[int, int], None] | None = None,
+    devices: int | None = None,
 ) -> Counts:
     """`observer_counts` of C configurations (leading axis C) summed over the fleet, `chunk`
     configurations per vmapped call (the last chunk padded, so one compilation serves all), split
@@ -113,8 +128,9 @@ def grid_counts(
     return jax.tree.map(lambda *a: np.concatenate(a), *parts)
 
 
-def pick_best(f1: np.ndarray, exact: Callable[[int], dict], f1_tolerance: float = 0.005, top_k: int = 8,
-              max_delay_s: float = 0.1) -> tuple[int, dict]:
+def pick_best(
+    f1: np.ndarray, exact: Callable[[int], dict], f1_tolerance: float = 0.005, top_k: int = 8, max_delay_s: float = 0.1
+) -> tuple[int, dict]:
     """Index of the winning configuration by the grid rule of the module docstring, and its scores;
     `exact(i)` returns fleet_scores of configuration i."""
     order = np.argsort(-np.asarray(f1), kind="stable")
@@ -136,9 +152,17 @@ class GridResult:
 
 
 def grid_search(
-    spec: GridSpec, base: ObserverParams, inputs: ObserverInputs, truth: ContactTruth, t,
-    chunk: int = 256, f1_tolerance: float = 0.005, top_k: int = 8, max_delay_s: float = 0.1,
-    progress: Callable[[int, int], None] | None = None, devices: int | None = None,
+    spec: GridSpec,
+    base: ObserverParams,
+    inputs: ObserverInputs,
+    truth: ContactTruth,
+    t,
+    chunk: int = 256,
+    f1_tolerance: float = 0.005,
+    top_k: int = 8,
+    max_delay_s: float = 0.1,
+    progress: Callable[[int, int], None] | None = None,
+    devices: int | None = None,
 ) -> GridResult:
     """Best configuration of the grid on the given robots (see the module docstring for the rule);
     the grid is split over `devices` devices (default all)."""
@@ -148,5 +172,7 @@ def grid_search(
     f1 = np.asarray(f1_of(counts))
     rmse = np.sqrt(counts.force_sq.sum(-1) / np.maximum(counts.samples * counts.force_sq.shape[-1], 1))
     take = lambda i: jax.tree.map(lambda a: a[i], params)  # noqa: E731
-    i, s = pick_best(f1, lambda i: fleet_scores(take(i), inputs, truth, t, max_delay_s), f1_tolerance, top_k, max_delay_s)
+    i, s = pick_best(
+        f1, lambda i: fleet_scores(take(i), inputs, truth, t, max_delay_s), f1_tolerance, top_k, max_delay_s
+    )
     return GridResult(best=take(i), index=i, f1=f1, force_rmse_n=rmse, scores=s, wall_s=time.perf_counter() - start)

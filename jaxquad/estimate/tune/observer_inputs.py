@@ -66,8 +66,14 @@ def _momentum_fn(robot, axes: str, passive: bool):
 
 
 def observer_inputs(
-    robot, log, max_gap_s: float = 0.05, torque_saturation: float = 0.99, chunk: int = 4096,
-    axes: str = "xyz", passive: bool = True, rows: str = "joints",
+    robot,
+    log,
+    max_gap_s: float = 0.05,
+    torque_saturation: float = 0.99,
+    chunk: int = 4096,
+    axes: str = "xyz",
+    passive: bool = True,
+    rows: str = "joints",
 ) -> tuple[ObserverInputs, ContactTruth, np.ndarray]:
     """Observer inputs and ground truth of every robot of a log (leading axis N; a single log is a
     fleet of one), and the sample times t (T,) in s. Samples go through MJX in chunks of `chunk`.
@@ -117,9 +123,13 @@ def observer_inputs(
     first, gap = (np.asarray(x) for x in gaps(jnp.asarray(dt), jnp.float32(max_gap_s)))
     step_dt = np.where(tau_ok & ~(first | gap)[None], dt[None], np.nan)
     obs_inputs = ObserverInputs(
-        p=jnp.asarray(p), tau_bar=jnp.asarray(tau_bar), J_z=jnp.asarray(J_z),
-        dt=jnp.asarray(step_dt, jnp.float32), restart=jnp.asarray(np.broadcast_to(first | gap, (n, T))), axes=axes,
-    )  # fmt: skip
+        p=jnp.asarray(p),
+        tau_bar=jnp.asarray(tau_bar),
+        J_z=jnp.asarray(J_z),
+        dt=jnp.asarray(step_dt, jnp.float32),
+        restart=jnp.asarray(np.broadcast_to(first | gap, (n, T))),
+        axes=axes,
+    )
     truth = ContactTruth(
         contact=jnp.asarray(lead(log["gt_contact"]).astype(bool)),
         force_z=jnp.asarray(lead(log["gt_force"])[..., 2], jnp.float32),

@@ -63,17 +63,21 @@ def observer_counts(params: ObserverParams, inputs: ObserverInputs, truth: Conta
     """Contact confusion counts and squared force error of one robot, accumulated inside the scan."""
     n_feet = inputs.n_feet
     zeros = jnp.zeros(n_feet, jnp.int32)
-    acc0 = Counts(tp=zeros, fp=zeros, fn=zeros, force_sq=jnp.zeros(n_feet, jnp.float32), samples=jnp.zeros((), jnp.int32))
+    acc0 = Counts(
+        tp=zeros, fp=zeros, fn=zeros, force_sq=jnp.zeros(n_feet, jnp.float32), samples=jnp.zeros((), jnp.int32)
+    )
 
     def reduce(acc: Counts, est: ContactEstimate, truth_k):
         contact, force_z, valid = truth_k
         hit, true = est.contact & valid, contact & valid
         err = jnp.where(valid, est.force_z_filtered - force_z, 0.0)
         return Counts(
-            tp=acc.tp + (hit & true).astype(jnp.int32), fp=acc.fp + (hit & ~true).astype(jnp.int32),
-            fn=acc.fn + (~hit & true).astype(jnp.int32), force_sq=acc.force_sq + err * err,
+            tp=acc.tp + (hit & true).astype(jnp.int32),
+            fp=acc.fp + (hit & ~true).astype(jnp.int32),
+            fn=acc.fn + (~hit & true).astype(jnp.int32),
+            force_sq=acc.force_sq + err * err,
             samples=acc.samples + valid.astype(jnp.int32),
-        ), None  # fmt: skip
+        ), None
 
     return _observer_scan(params, inputs, acc0, reduce, (truth.contact, truth.force_z, truth.valid))[0]
 
@@ -99,8 +103,9 @@ def fleet_scores(
     c = scores.contact_scores(est.contact.reshape(n * T, F), contact.reshape(n * T, F), valid.reshape(n * T))
     out = {"f1": c["f1"], "precision": c["precision"], "recall": c["recall"]}
     # Delays pooled over matched events (NaN when none matched: never a 0 from nothing).
-    agg = scores.aggregate_delays([scores.detection_delays(t, est.contact[i], contact[i], valid[i], max_delay_s)
-                                   for i in range(n)])  # fmt: skip
+    agg = scores.aggregate_delays(
+        [scores.detection_delays(t, est.contact[i], contact[i], valid[i], max_delay_s) for i in range(n)]
+    )
     for kind in ("touchdown", "liftoff"):
         a = agg[kind]
         out[f"{kind}_mean_ms"], out[f"{kind}_mean_abs_ms"] = a["mean_ms"], a["mean_abs_ms"]

@@ -35,9 +35,18 @@ def split_robots(n: int, holdout: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def tune_fleet(
-    method: Literal["grid", "gradient"], inputs: ObserverInputs, truth: ContactTruth, t,
-    mode: Literal["plain", "mixed"] = "mixed", holdout: float = 0.25, spec: GridSpec | None = None,
-    chunk: int = 256, steps: int = 200, start: ObserverParams | None = None, progress=None, **options,
+    method: Literal["grid", "gradient"],
+    inputs: ObserverInputs,
+    truth: ContactTruth,
+    t,
+    mode: Literal["plain", "mixed"] = "mixed",
+    holdout: float = 0.25,
+    spec: GridSpec | None = None,
+    chunk: int = 256,
+    steps: int = 200,
+    start: ObserverParams | None = None,
+    progress=None,
+    **options,
 ) -> tuple[ObserverParams, dict]:
     """Tune on the training robots; return the best params and a JSON-ready summary with scores of
     the paper's defaults and of the result on the training and held-out robots, and wall times."""
@@ -45,25 +54,41 @@ def tune_fleet(
     train, held = split_robots(n, holdout)
     tr_in, tr_truth = select_robots(inputs, train), select_robots(truth, train)
     paper = ObserverParams.paper(inputs.n_feet, mode)
-    summary: dict = {"method": method, "mode": mode, "holdout": holdout, "robots_train": int(train.size),
-                     "robots_heldout": int(held.size), "samples": int(t.size),
-                     "duration_s": float(t[-1] - t[0])}  # fmt: skip
+    summary: dict = {
+        "method": method,
+        "mode": mode,
+        "holdout": holdout,
+        "robots_train": int(train.size),
+        "robots_heldout": int(held.size),
+        "samples": int(t.size),
+        "duration_s": float(t[-1] - t[0]),
+    }
     if method == "grid":
         spec = GridSpec.default() if spec is None else spec
         res = grid_search(spec, paper, tr_in, tr_truth, t, chunk, progress=progress, **options)
         best = res.best
-        summary.update(configurations=spec.size, chunk=chunk, best_index=res.index, wall_s=res.wall_s,
-                       grid={f.name: list(getattr(spec, f.name)) for f in dataclasses.fields(spec)},
-                       options=call_options(grid_search, {"chunk": chunk, **options}),
-                       base_params=observer_params_dict(paper))  # fmt: skip
+        summary.update(
+            configurations=spec.size,
+            chunk=chunk,
+            best_index=res.index,
+            wall_s=res.wall_s,
+            grid={f.name: list(getattr(spec, f.name)) for f in dataclasses.fields(spec)},
+            options=call_options(grid_search, {"chunk": chunk, **options}),
+            base_params=observer_params_dict(paper),
+        )
     elif method == "gradient":
         start = paper if start is None else start
         res = gradient_tune(start, tr_in, tr_truth, steps, progress=progress, **options)
         best = res.best
-        summary.update(steps=int(res.loss.size), best_step=res.best_step, stopped=res.stopped, wall_s=res.wall_s,
-                       loss=[float(x) for x in res.loss],
-                       options=call_options(gradient_tune, {"steps": steps, **options}),
-                       start_params=observer_params_dict(start))  # fmt: skip
+        summary.update(
+            steps=int(res.loss.size),
+            best_step=res.best_step,
+            stopped=res.stopped,
+            wall_s=res.wall_s,
+            loss=[float(x) for x in res.loss],
+            options=call_options(gradient_tune, {"steps": steps, **options}),
+            start_params=observer_params_dict(start),
+        )
     else:
         raise ValueError(f"method must be grid or gradient, got {method!r}")
     summary["params"] = observer_params_dict(best)
