@@ -143,7 +143,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"[{robot} {style}: {time.perf_counter() - t0:.0f} s]", file=sys.stderr, flush=True)
 
     print(
-        "| robot | style | contacts | contact F1 | drift % (2-10 m segments) | z error at end m | ATE m | robots (fallen) |"
+        "| robot | style | contacts | contact F1 | drift % (2-10 m segments) | z error at end m | ATE m "
+        "| robots (fallen) |"
     )
     print("|---|---|---|---:|---:|---:|---:|---:|")
     for robot, style, source, f1, dh, dz, ate, n in rows:

@@ -52,7 +52,8 @@ def main() -> None:
         f"observer inputs {inputs_s:.1f} s\n"
     )
     print(
-        "| parameters | robots | F1 | touchdown ms (mean, abs) | lift-off ms (mean, abs) | missed edges | force RMSE N | wall s |"
+        "| parameters | robots | F1 | touchdown ms (mean, abs) | lift-off ms (mean, abs) | missed edges "
+        "| force RMSE N | wall s |"
     )
     print("|---|---|---|---|---|---|---|---|")
     rows = [("paper defaults", "paper", runs["grid"], None)]
@@ -69,7 +70,8 @@ def main() -> None:
         for split in splits:
             s = run[f"{prefix}_{split}"]
             print(
-                f"| {name} | {split} | {s['f1']:.4f} | {s['touchdown_mean_ms']:.1f}, {s['touchdown_mean_abs_ms']:.1f} | "
+                f"| {name} | {split} | {s['f1']:.4f} | "
+                f"{s['touchdown_mean_ms']:.1f}, {s['touchdown_mean_abs_ms']:.1f} | "
                 f"{s['liftoff_mean_ms']:.1f}, {s['liftoff_mean_abs_ms']:.1f} | "
                 f"{s['touchdown_missed'] + s['liftoff_missed']} | {s['force_rmse_n']:.1f} | "
                 f"{'' if wall is None else f'{wall:.1f}'} |"

@@ -226,7 +226,8 @@ def world_xml(world: World) -> str:
     """MJCF of the world alone (floor plane named `floor` + boxes, no collisions), for viewing and
     for checking the caster against MuJoCo's own ray casting."""
     geoms = "".join(
-        f'<geom name="box{i}" type="box" pos="{c[0]:.6f} {c[1]:.6f} {c[2]:.6f}" size="{h[0]:.6f} {h[1]:.6f} {h[2]:.6f}" '
+        f'<geom name="box{i}" type="box" pos="{c[0]:.6f} {c[1]:.6f} {c[2]:.6f}" '
+        f'size="{h[0]:.6f} {h[1]:.6f} {h[2]:.6f}" '
         f'euler="0 0 {y:.9f}" contype="0" conaffinity="0" rgba="0.7 0.7 0.65 1"/>'
         for i, (c, h, y) in enumerate(zip(world.center, world.half, world.yaw))
     )

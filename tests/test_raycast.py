@@ -22,7 +22,10 @@ def _mujoco_scene() -> tuple[mujoco.MjModel, mujoco.MjData]:
         f'<geom type="box" pos="{c[0]} {c[1]} {c[2]}" size="{h[0]} {h[1]} {h[2]}" euler="0 0 {y}"/>'
         for c, h, y in zip(_CENTERS, _HALF, _YAW)
     )
-    xml = f'<mujoco><compiler angle="radian"/><worldbody><geom name="floor" type="plane" size="0 0 1"/>{geoms}</worldbody></mujoco>'
+    xml = (
+        f'<mujoco><compiler angle="radian"/><worldbody><geom name="floor" type="plane" size="0 0 1"/>{geoms}'
+        "</worldbody></mujoco>"
+    )
     m = mujoco.MjModel.from_xml_string(xml)
     d = mujoco.MjData(m)
     mujoco.mj_forward(m, d)

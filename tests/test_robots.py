@@ -20,9 +20,11 @@ def _tiny_mjcf(free: bool = True, foot_sites: bool = False) -> str:
       <body name="{leg}_hip" pos="{x} {y} 0">
         <joint name="{leg}_a" axis="1 0 0"/><geom type="sphere" size="0.03" mass="0.5" contype="0" conaffinity="0"/>
         <body name="{leg}_thigh" pos="0 {y} 0">
-          <joint name="{leg}_b" axis="0 1 0"/><geom type="capsule" fromto="0 0 0 0 0 -0.2" size="0.02" mass="1" contype="0" conaffinity="0"/>
+          <joint name="{leg}_b" axis="0 1 0"/>
+          <geom type="capsule" fromto="0 0 0 0 0 -0.2" size="0.02" mass="1" contype="0" conaffinity="0"/>
           <body name="{leg}_calf" pos="0 0 -0.2">
-            <joint name="{leg}_c" axis="0 1 0"/><geom type="capsule" fromto="0 0 0 0 0 -0.2" size="0.01" mass="0.2" contype="0" conaffinity="0"/>
+            <joint name="{leg}_c" axis="0 1 0"/>
+            <geom type="capsule" fromto="0 0 0 0 0 -0.2" size="0.01" mass="0.2" contype="0" conaffinity="0"/>
             <geom name="{leg}_foot" type="sphere" pos="0 0 -0.2" size="0.02" mass="0.05"/>{site}
           </body>
         </body>

@@ -43,6 +43,7 @@ def run(args: argparse.Namespace) -> int:
     times = ", ".join(f"{k} {v:.0f} s" for k, v in summary["wall_s"].items())
     print(f"{len(summary['fallen'])} robots, {fell} fell; wall time: {times}")
     print(
-        f"wrote {Path(args.out).resolve()}: summary.json, trajectories.png, contacts.png, scan_frame.png, sim/, estimate_*/"
+        f"wrote {Path(args.out).resolve()}: summary.json, trajectories.png, contacts.png, scan_frame.png, "
+        "sim/, estimate_*/"
     )
     return 0

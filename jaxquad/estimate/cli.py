@@ -1,7 +1,8 @@
 """`jaxquad estimate LOG --out DIR`: contacts and leg-inertial odometry over a robot log.
 
 Writes per robot a TUM trajectory, an .npz of contacts, forces, twists and flags, stabilized and
-baseline scans when the log has depth, and summary.json with flag counts and, when the log has ground truth, scores (see jaxquad.estimate.run).
+baseline scans when the log has depth, and summary.json with flag counts and, when the log has ground
+truth, scores (see jaxquad.estimate.run).
 """
 
 from __future__ import annotations
@@ -23,7 +24,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--contacts",
         choices=("observer", "mixed", "sensor", "truth"),
         default="mixed",
-        help="contact source: momentum observer (plain or mixed mode), the robot's sensors, or ground truth (default mixed)",
+        help="contact source: momentum observer (plain or mixed mode), the robot's sensors, or ground truth "
+        "(default mixed)",
     )
     parser.add_argument(
         "--band-height", type=int, default=5, help="scan band height, px (default 5 = simulation; 30 on the real robot)"

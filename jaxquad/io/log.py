@@ -16,7 +16,7 @@
 | `depth` | (F, H, W) | depth images, z-depth in metres, 0 = invalid | optional, with the next three |
 | `depth_t` | (F,) | s, strictly increasing | with `depth` |
 | `K` | (3, 3) | pinhole intrinsics (px) of the depth images | with `depth` |
-| `T_base_camera` | (4, 4) | base-from-camera transform; camera = optical frame (x right, y down, z forward) | with `depth` |
+| `T_base_camera` | (4, 4) | base-from-camera transform; optical frame: x right, y down, z forward | with `depth` |
 | `gt_pose` | (T, 7) | ground-truth base pose x y z (m) qw qx qy qz (world-from-base) | optional |
 | `gt_contact` | (T, 4) | ground-truth foot contact flags | optional |
 | `gt_force` | (T, 4, 3) | ground-truth contact force on each foot, world frame, N | optional |

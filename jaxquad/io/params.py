@@ -69,7 +69,8 @@ def _number_array(path: Path, key: str, value, n_feet: int) -> np.ndarray:
         a = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise ValueError(
-            f"params file {path}: {key} must be a number{' or a list of numbers' if key in _PER_FOOT else ''}, got {value!r}"
+            f"params file {path}: {key} must be a number{' or a list of numbers' if key in _PER_FOOT else ''}, "
+            f"got {value!r}"
         ) from None
     if key in _PER_FOOT:
         if a.ndim > 1 or (a.ndim == 1 and a.size not in (1, n_feet)):

@@ -8,16 +8,16 @@ Written, with `F` the world frame (`--frame`, default `odom`) and `<name>` the f
 
 | topic | type | content |
 |---|---|---|
-| `/<name>/odom` | nav_msgs/Odometry | every pose, `F` -> `<name>/base_link`; twist in the base frame when `<name>.npz` has it |
+| `/<name>/odom` | nav_msgs/Odometry | every pose, `F` -> `<name>/base_link`; base-frame twist if `<name>.npz` has it |
 | `/<name>/path` | nav_msgs/Path | the whole trajectory, once, at its first stamp |
-| `/tf` | tf2_msgs/TFMessage | `F` -> `<name>/base_link` per pose; `<name>/base_link` -> `<name>/base_level` per scan |
-| `/<name>/scan_stabilized` | sensor_msgs/LaserScan | stabilized scans in `<name>/base_level` (yaw-only, gravity-level) |
+| `/tf` | tf2_msgs/TFMessage | `F` -> `<name>/base_link` per pose, `<name>/base_link` -> `<name>/base_level` per scan |
+| `/<name>/scan_stabilized` | sensor_msgs/LaserScan | stabilized scans in `<name>/base_level` (level, yaw only) |
 | `/<name>/scan_baseline` | sensor_msgs/LaserScan | fixed-row scans in `<name>/base_link` |
-| `/map`, or `/map/<stem>` for several | nav_msgs/OccupancyGrid | each map, once, at the first stamp (-1 unknown, 0..100, row-major from the lower-left cell) |
+| `/map` or `/map/<stem>` | nav_msgs/OccupancyGrid | each map once, first stamp (-1 unknown, 0..100, bottom row first) |
 
 Scan beams are resampled to equal angle steps (the nearest image column's range; the columns'
 bearings are not equally spaced); +inf = no return. The camera's offset on the base is not in the
-results folder, so scans are placed at the base origin.
+results folder, so scans are placed at the base origin. One map goes to `/map`, several to `/map/<stem>`.
 """
 
 from __future__ import annotations

@@ -13,8 +13,9 @@ added on the first scan of each `min_interval`-long slot of the clock (t // min_
 when the robot has moved `min_travel` m or turned `min_rotation` rad since the last node (the first
 usable scan is always a node): slam_toolbox's time and travel thresholds, with the time one on a
 shared clock so that the robots of a fleet add their nodes on the same scans (see `_run_if`). A new
-node's scan is matched (`kernels.scan_match`, the exact multi-resolution correlative search) against the running buffer: the last `SlamSpec.buffer` nodes
-within `buffer_distance` m, smeared into one likelihood grid. The match gives an edge from the last
+node's scan is matched (`kernels.scan_match`, the exact multi-resolution correlative search) against
+the running buffer: the last `SlamSpec.buffer` nodes within `buffer_distance` m, smeared into one
+likelihood grid. The match gives an edge from the last
 node (its covariance rotated into the node's frame); a response under `link_min_response` gives the
 odometry step instead, with `odom_fallback_std`.
 

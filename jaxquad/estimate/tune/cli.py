@@ -45,7 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--grid-size",
         type=_grid_size,
         default=4,
-        help="points per axis (bandwidth, alpha front, alpha rear, threshold on, off/on ratio): N or N,N,N,N,N (default 4)",
+        help="points per axis (bandwidth, alpha front, alpha rear, threshold on, off/on ratio): N or N,N,N,N,N "
+        "(default 4)",
     )
     grid.add_argument(
         "--chunk",
