@@ -6,10 +6,10 @@ multi-process run every device of every process). A batch whose size is not a mu
 device count is padded with copies of its last element (`pad`): they are computed and dropped
 (`unpad`), so every real element gets the numbers it gets on one device.
 
-Programs: `shard_batched(fn, mesh, in_axes, out_axes)` wraps a batched (vmapped) function with
-`jax.shard_map`: each device runs `fn` on its block with no communication, so the compiled
-per-device program is the one-device program at 1/n of the batch, and XLA's memory analysis of it is
-per device. Axes follow `vmap`'s `in_axes`: an int is the batch axis of every leaf below it
+Programs: `shard_batched(fn, mesh, in_axes, out_axes)` pins a batched (vmapped) function's
+arguments and results to the batch split; XLA's partitioner gives each device its block with no
+communication, so the compiled per-device program is the one-device program at 1/n of the batch,
+and XLA's memory analysis of it is per device. Axes follow `vmap`'s `in_axes`: an int is the batch axis of every leaf below it
 (time-major fleet outputs (T, N, ...) have it at 1), None marks a leaf shared by all (replicated).
 
 Processes: `initialize()` starts `jax.distributed` when JAXQUAD_NUM_PROCESSES > 1 is set, with
@@ -130,10 +130,23 @@ def place(tree, mesh: Mesh, axes=0):
 
 
 def shard_batched(fn, mesh: Mesh, in_axes, out_axes):
-    """`fn` (batched: it takes and returns blocks of the batch) run by every device on its block;
-    `in_axes` (one entry per argument) and `out_axes` say where the batch axis lies, as vmap's."""
-    specs = lambda axes: jax.tree.map(_spec, axes, is_leaf=lambda a: a is None)  # noqa: E731
-    return jax.shard_map(fn, mesh=mesh, in_specs=specs(tuple(in_axes)), out_specs=specs(out_axes), check_vma=False)
+    """`fn` (batched: it takes and returns the whole batch) with its arguments and results split over
+    `mesh` along the batch axis; `in_axes` (one entry per argument) and `out_axes` say where that axis
+    lies, as vmap's. XLA's partitioner then gives every device its block: a vmapped program has no
+    operation across the batch, so the per-device program is the one-device program at 1/n of the
+    batch. (`jax.shard_map` would say this by hand, but XLA's GPU compiler crashes on MJX's programs
+    under it: jax 0.11.2, 2 H200s.) One device: `fn` itself."""
+    if mesh.size == 1:
+        return fn
+
+    def constrain(tree, axes):
+        return _axes_map(lambda a, x: jax.lax.with_sharding_constraint(x, NamedSharding(mesh, _spec(a))), axes, tree)
+
+    @functools.wraps(fn)
+    def batched(*args):
+        return constrain(fn(*constrain(args, tuple(in_axes))), out_axes)
+
+    return batched
 
 
 def _sync(tree) -> None:

@@ -318,18 +318,22 @@ def _bind(fleet: Fleet, qpos0: Array, gyro_adr: int, acc_adr: int) -> None:
     want = cfg.frames_per_chunk or MAX_FRAMES_PER_CHUNK
     frames = memory.plan_frames(fixed + per_frame * want, want, per_frame, int(memory.PLAN_FRACTION * budget))
     total = fixed + per_frame * frames
+    measured = None  # (frames, XLA's footprint) of the last chunk compiled
     if frames >= 1:
         compiled = _compile_chunk(fleet, state_shape, frames)
         total = memory.footprint_bytes(compiled)
+        measured = (frames, total)
         if total > budget:  # temporaries larger than planned: shrink once by XLA's own figure
             frames = memory.plan_frames(total, frames, per_frame, budget)
             if frames >= 1:
                 compiled = _compile_chunk(fleet, state_shape, frames)
                 total = memory.footprint_bytes(compiled)
+                measured = (frames, total)
     if frames < 1 or total > budget or (cfg.frames_per_chunk is not None and frames < cfg.frames_per_chunk):
         # A 1-frame chunk's footprint: XLA's figure where a chunk was compiled, else the planned buffers
         # with the planning headroom; both scale with the robot count.
-        at_one = total - per_frame * (frames - 1) if frames >= 1 else int((fixed + per_frame) / memory.PLAN_FRACTION)
+        at_one = (measured[1] - per_frame * (measured[0] - 1) if measured
+                  else int((fixed + per_frame) / memory.PLAN_FRACTION))  # fmt: skip
         n_max = memory.largest_fleet(fleet.n_batch // fleet.mesh.size, at_one, budget) * fleet.mesh.size
         what = (
             f"a chunk of {cfg.frames_per_chunk} frames"
