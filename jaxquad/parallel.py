@@ -9,8 +9,9 @@ device count is padded with copies of its last element (`pad`): they are compute
 Programs: `shard_batched(fn, mesh, in_axes, out_axes)` pins a batched (vmapped) function's
 arguments and results to the batch split; XLA's partitioner gives each device its block with no
 communication, so the compiled per-device program is the one-device program at 1/n of the batch,
-and XLA's memory analysis of it is per device. Axes follow `vmap`'s `in_axes`: an int is the batch axis of every leaf below it
-(time-major fleet outputs (T, N, ...) have it at 1), None marks a leaf shared by all (replicated).
+and XLA's memory analysis of it is per device. Axes follow `vmap`'s `in_axes`: an int is the batch
+axis of every leaf below it (time-major fleet outputs (T, N, ...) have it at 1), None marks a leaf
+shared by all (replicated).
 
 Processes: `initialize()` starts `jax.distributed` when JAXQUAD_NUM_PROCESSES > 1 is set, with
 JAXQUAD_COORDINATOR (host:port of process 0) and JAXQUAD_PROCESS_ID (0 .. n-1); which accelerators a
