@@ -27,25 +27,13 @@ import jax
 import numpy as np
 
 
-def _subsample(x: dict, every: int) -> dict:
-    out = {}
-    for k, v in x.items():
-        if k in ("bearings", "T_base_laser"):
-            out[k] = v
-        elif k == "t":
-            out[k] = v[::every]
-        else:
-            out[k] = v[:, ::every]
-    return out
-
-
 def _stats(vals) -> str:
     vals = np.asarray([v for v in vals if v is not None and np.isfinite(v)], float)
     return f"{vals.mean():.3f} +- {vals.std():.3f}" if vals.size else "-"
 
 
 def _cell(args, robot: str, world: str, rows: list, json_rows: list) -> dict:
-    from jaxquad.estimate.laser import laser_inputs
+    from jaxquad.estimate.laser import every_nth_frame, laser_inputs
     from jaxquad.sim.fleet import FleetConfig
     from jaxquad.sim.rollout import rollout
     from jaxquad.slam import final_poses, load_params, map_grid, run_fleet, slam_config
@@ -67,7 +55,7 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list) -> dict:
         log, "stabilized", args.contacts, 5, 0.2, values["max_laser_range"], None, values["leg_yaw_rate_std"]
     )
     every = max(1, round(config.camera_hz / args.scan_hz))
-    x = _subsample(x, every)
+    x = every_nth_frame(x, every)
     t = np.asarray(x["t"], np.float64)
     grid = map_grid(x, values["resolution"], values["max_laser_range"])
     world_index = np.asarray(log["world_index"])

@@ -111,8 +111,8 @@ def main(argv: list[str] | None = None) -> int:
 
             parallel.initialize()
         return int(modules[args.command].run(args) or 0)
-    except (ValueError, FileNotFoundError) as e:
-        # Known input errors: one line, exit 1 (tracebacks are for bugs).
+    except (ValueError, OSError) as e:
+        # Known input and output errors (a full disk, a folder not writable): one line, exit 1.
         print(f"jaxquad {args.command}: error: {e}", file=sys.stderr)
         return 1
 

@@ -109,7 +109,7 @@ def simulate(config, seconds: float, out: str | Path, progress: bool = True) -> 
     with atomic_dir(out) as tmp:
         store = tmp / ".arrays"
         store.mkdir()
-        log = rollout(config, seconds, progress, store=store)
+        log = rollout(config, seconds, progress, store=store, store_copies=2)  # the arrays, then fleet.npz
         write_fleet(log, tmp)
         del log
         shutil.rmtree(store)

@@ -332,8 +332,9 @@ def _bind(fleet: Fleet, qpos0: Array, gyro_adr: int, acc_adr: int) -> None:
     if frames < 1 or total > budget or (cfg.frames_per_chunk is not None and frames < cfg.frames_per_chunk):
         # A 1-frame chunk's footprint: XLA's figure where a chunk was compiled, else the planned buffers
         # with the planning headroom; both scale with the robot count.
-        at_one = (measured[1] - per_frame * (measured[0] - 1) if measured
-                  else int((fixed + per_frame) / memory.PLAN_FRACTION))  # fmt: skip
+        at_one = (
+            measured[1] - per_frame * (measured[0] - 1) if measured else int((fixed + per_frame) / memory.PLAN_FRACTION)
+        )
         n_max = memory.largest_fleet(fleet.n_batch // fleet.mesh.size, at_one, budget) * fleet.mesh.size
         what = (
             f"a chunk of {cfg.frames_per_chunk} frames"

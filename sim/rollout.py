@@ -9,6 +9,7 @@ memory-mapped files under `store`, to bound host memory for large fleets).
 from __future__ import annotations
 
 import os
+import shutil
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
@@ -53,8 +54,21 @@ class FleetLog(Mapping):
         return f"FleetLog({self.config.robot!r}, {self.n_robots} robots x {T} samples, keys={sorted(self._arrays)})"
 
 
+def _check_disk(folder, need_bytes: int) -> None:
+    free = shutil.disk_usage(folder).free
+    if need_bytes > free:
+        raise ValueError(
+            f"the log needs {need_bytes / 1e9:.1f} GB in {folder} but only {free / 1e9:.1f} GB are free; "
+            "simulate fewer robots or seconds, or --no-depth"
+        )
+
+
 def rollout(
-    config: FleetConfig, seconds: float, progress: bool = True, store: str | os.PathLike | None = None
+    config: FleetConfig,
+    seconds: float,
+    progress: bool = True,
+    store: str | os.PathLike | None = None,
+    store_copies: int = 1,
 ) -> FleetLog | None:
     """Simulate the fleet for `seconds` (rounded up to whole chunks) and return its log.
 
@@ -62,6 +76,8 @@ def rollout(
     same numbers as on one. In a multi-process run every process calls this and process 0 gets the
     log (the others get None).
     store: a folder for memory-mapped arrays (`<key>.npy`), else the arrays live in host memory.
+    Its file system must have room for `store_copies` times the log (the caller's files written from
+    the arrays count too): checked before simulating.
     """
     from tqdm import tqdm
 
@@ -71,6 +87,11 @@ def rollout(
     chunks = n_chunks(fleet, seconds)
     n, T = config.n_robots, chunks * fleet.samples_per_chunk
     F = chunks * fleet.frames_per_chunk
+    if store is not None and parallel.is_main():  # (N, ...) per chunk, robots on axis 1; n of N are real
+        per_chunk = sum(
+            np.prod(o.shape) // o.shape[1] * n * o.dtype.itemsize for o in fleet._chunk.out_info[1].values()
+        )
+        _check_disk(store, int(store_copies * chunks * per_chunk))
     arrays: dict[str, np.ndarray] = {}
     state = init(fleet)
     desc = f"simulate {n} x {config.robot}"

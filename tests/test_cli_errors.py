@@ -249,6 +249,11 @@ CASES = {
         ("slam {log_npz} --out {new} --true-map {binary}", ["binary", "UTF-8"]),
         ("slam {log_npz} --out {new} --band-height 0", ["--band-height"]),
         ("slam {log_npz} --out {new} --format gps", ["--format"]),
+        ("slam {log_npz} --out {new} --variant full --scans baseline", ["--variant", "--scans"]),
+        ("slam {log_npz} --out {new} --variant B+LO --lo-constraints off", ["--variant", "--lo-constraints"]),
+        ("slam {log_npz} --out {new} --variant ours", ["--variant"]),
+        ("slam {log_npz} --out {new} --vo-leg-odometry off", ["--vo-leg-odometry", "--odometry vo"]),
+        ("slam {text_npz} --out {new} --format carmen --odometry vo", ["robot log", "carmen"]),
     ],
     "navigate": [
         ("navigate --out {afile}", ["afile", "not a folder"]),

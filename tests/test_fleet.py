@@ -1,5 +1,7 @@
 """Short MJX fleet runs (slow: one compile per robot): logs validate, physics and sensors agree."""
 
+import shutil
+
 import numpy as np
 import pytest
 
@@ -22,7 +24,7 @@ def _R(q_wxyz: np.ndarray) -> np.ndarray:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("robot", ["go2", "badger"])
-def test_fleet_run(robot, tmp_path):
+def test_fleet_run(robot, tmp_path, monkeypatch):
     cfg = FleetConfig(robot=robot, n_robots=2, n_worlds=2, frames_per_chunk=16, seed=1, width=32, height=24)
     log = load_log(simulate(cfg, 2.0, tmp_path / "a", progress=False))  # load_log validates
     n, T = 2, log["t"].shape[0]
@@ -63,3 +65,17 @@ def test_fleet_run(robot, tmp_path):
             np.testing.assert_array_equal(again[k], log[k])
         other = load_log(simulate(FleetConfig(**{**cfg.__dict__, "seed": 2}), 2.0, tmp_path / "c", progress=False))
         assert not np.allclose(other["gt_pose"], log["gt_pose"])
+
+        # A disk without room for the log twice (memory-mapped arrays, then fleet.npz) is refused
+        # before simulating, and nothing is left at the output path.
+        F = log["depth_t"].shape[0]
+        need = 2 * sum(v.nbytes for v in log.values() if v.ndim >= 2 and v.shape[:2] in ((n, T), (n, F)))
+        for free, refused in ((need - 1, True), (need, False)):
+            usage = shutil._ntuple_diskusage(10 * need, 0, free)
+            monkeypatch.setattr(shutil, "disk_usage", lambda _folder, u=usage: u)
+            if refused:
+                with pytest.raises(ValueError, match="the log needs .* GB"):
+                    simulate(cfg, 2.0, tmp_path / "d", progress=False)
+                assert not (tmp_path / "d").exists()
+            else:
+                simulate(cfg, 2.0, tmp_path / "d", progress=False)

@@ -406,20 +406,11 @@ def pipeline_step(
 
 def estimate_robot(robot, config: PipelineConfig, params: PipelineParams, inputs: RobotInputs) -> Estimate:
     """Run the pipeline over one robot's inputs (pure; jit and vmap at the call site)."""
-    xs = PipelineSample(
-        dt=inputs.dt,
-        q=inputs.q,
-        qd=inputs.qd,
-        tau=inputs.tau,
-        gyro=inputs.gyro,
-        acc=inputs.acc,
-        quat_wxyz=inputs.quat_wxyz,
-        contact_weight=inputs.contact_weight,
-        valid=inputs.valid,
-    )
-    first = jax.tree.map(lambda a: a[0], xs)
+    # The rows of `inputs` enter the scan as a dict; each step builds its one-sample PipelineSample.
+    rows = {name: getattr(inputs, name) for name in PipelineSample.__dataclass_fields__}
+    first = PipelineSample(**jax.tree.map(lambda a: a[0], rows))
     state = pipeline_init(robot, config, params, first, inputs.p0_world_base, inputs.yaw0)
-    _, out = jax.lax.scan(lambda c, x: pipeline_step(robot, config, params, c, x), state, xs)
+    _, out = jax.lax.scan(lambda c, r: pipeline_step(robot, config, params, c, PipelineSample(**r)), state, rows)
     return out
 
 

@@ -108,7 +108,7 @@ class LoopInputs(eqx.Module):
     model: object  # mjx.Model (batched as `Fleet.model_in_axes`)
     setup: object  # sim.RobotSetup
     nav_map: NavMap
-    goal_ids: Int[Array, " G"]  # this robot's goals, indices into nav_map.table
+    goal_ids: Int[Array, "*N G"]  # this robot's goals (every robot's before vmap), indices into nav_map.table
     replan: Bool[Array, ""]  # replan on this tick (one flag for the fleet)
 
 
@@ -133,17 +133,17 @@ class LoopState(eqx.Module):
 
 
 class LoopOutput(eqx.Module):
-    """Per tick (a fleet adds leading time and robot axes)."""
+    """Per tick (leading axes B: a fleet adds time and robots)."""
 
-    t: Float[Array, ""]  # s
-    true_pose: Float[Array, " 3"]
-    pose: Float[Array, " 3"]  # localization estimate
-    odom: Float[Array, " 3"]  # odometry pose at the last frame
-    loc_error: Float[Array, " F"]  # m, at each frame of the tick
-    goal: Int[Array, ""]
-    active: Bool[Array, ""]  # the run had not ended at the start of the tick
-    recovering: Bool[Array, ""]
-    cmd: Float[Array, " 3"]
+    t: Float[Array, "*B"]  # s
+    true_pose: Float[Array, "*B 3"]
+    pose: Float[Array, "*B 3"]  # localization estimate
+    odom: Float[Array, "*B 3"]  # odometry pose at the last frame
+    loc_error: Float[Array, "*B F"]  # m, at each frame of the tick
+    goal: Int[Array, "*B"]
+    active: Bool[Array, "*B"]  # the run had not ended at the start of the tick
+    recovering: Bool[Array, "*B"]
+    cmd: Float[Array, "*B 3"]
 
 
 class LoopFunctions(NamedTuple):

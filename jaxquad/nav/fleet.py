@@ -177,17 +177,23 @@ def _compiled_functions(fleet, loop: cl.LoopConfig):
     key = (fleet.robot.path, c, loop)
     if key not in _FUNCTIONS:
         fns = cl.make_loop(fleet, loop)
-        axes = cl.LoopInputs(model=fleet.model_in_axes, setup=0, nav_map=None, goal_ids=0, replan=None)
-        batched_tick = jax.vmap(fns.tick, in_axes=(None, 0, axes))
+
+        def axes(inputs):  # vmap axes of LoopInputs: per-robot model fields, setup and goals; map and flag shared
+            fields = lambda x: (x.model, x.setup, x.nav_map, x.goal_ids, x.replan)  # noqa: E731
+            return eqx.tree_at(fields, inputs, (fleet.model_in_axes, 0, None, 0, None))
+
+        def init(params, inputs, qpos0, keys):
+            return jax.vmap(fns.init, in_axes=(None, axes(inputs), 0, 0))(params, inputs, qpos0, keys)
 
         def chunk(params, states, inputs, n_ticks: int, replan_ticks: int):
             def body(s, i):
-                return batched_tick(params, s, eqx.tree_at(lambda x: x.replan, inputs, i % replan_ticks == 0))
+                at_i = eqx.tree_at(lambda x: x.replan, inputs, i % replan_ticks == 0)
+                return jax.vmap(fns.tick, in_axes=(None, 0, axes(at_i)))(params, s, at_i)
 
             return jax.lax.scan(body, states, jnp.arange(n_ticks))
 
         _FUNCTIONS[key] = (
-            jax.jit(jax.vmap(fns.init, in_axes=(None, axes, 0, 0))),
+            jax.jit(init),
             jax.jit(chunk, static_argnames=("n_ticks", "replan_ticks"), donate_argnums=(1,)),
         )
     return _FUNCTIONS[key]
@@ -295,11 +301,11 @@ def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray
 
 def _keep(out: cl.LoopOutput, n_trace: int) -> cl.LoopOutput:
     """The chunk's outputs on the host; poses of the first `n_trace` robots only."""
-    out = jax.device_get(out)
-    return dataclasses.replace(
+    out = dataclasses.replace(  # sliced on the device: only what is kept is copied
         out,
         true_pose=out.true_pose[:, :n_trace],
         pose=out.pose[:, :n_trace],
         odom=out.odom[:, :n_trace],
         cmd=out.cmd[:, :n_trace],
     )
+    return jax.device_get(out)

@@ -26,21 +26,35 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--format", choices=FORMATS, default="auto", help="input kind (default auto: found from the file's content)"
     )
     parser.add_argument(
+        "--variant",
+        choices=("B", "B+LO", "B+SS", "full", "full+level"),
+        default=None,
+        help="robot logs: the paper's ablation variant, setting --scans, --odometry, "
+        "--vo-leg-odometry and --lo-constraints together (see jaxquad.slam.variants; default: none, "
+        "those options as given)",
+    )
+    parser.add_argument(
         "--scans",
         choices=("stabilized", "baseline", "level"),
-        default="stabilized",
+        default=None,
         help="robot logs: which 2D scan of the depth images (default stabilized)",
     )
     parser.add_argument(
         "--odometry",
-        choices=("lo",),
-        default="lo",
-        help="robot logs: odometry of the scans (default lo, the leg-inertial odometry)",
+        choices=("lo", "vo"),
+        default=None,
+        help="robot logs: odometry of the scans, lo (the leg-inertial odometry) or vo (depth odometry; default lo)",
+    )
+    parser.add_argument(
+        "--vo-leg-odometry",
+        choices=("off", "guess", "guess+restart"),
+        default=None,
+        help="with --odometry vo: how the leg odometry guides it (default guess+restart)",
     )
     parser.add_argument(
         "--lo-constraints",
         choices=("off", "velocity", "preintegrated"),
-        default="preintegrated",
+        default=None,
         help="leg-odometry edges between consecutive nodes (default preintegrated; laser logs: off)",
     )
     parser.add_argument(
@@ -95,6 +109,31 @@ def detect_format(path: Path) -> str:
     return "robot"
 
 
+def resolve_variant(args) -> None:
+    """Fill --scans, --odometry, --vo-leg-odometry and --lo-constraints from --variant (which may not be
+    combined with them) or from their defaults."""
+    from jaxquad.slam.variants import VARIANTS
+
+    keys = ("scans", "odometry", "vo_leg_odometry", "lo_constraints")
+    if args.variant is not None:
+        given = [f"--{k.replace('_', '-')}" for k in keys if getattr(args, k) is not None]
+        if given:
+            raise ValueError(f"--variant sets {', '.join(given)} itself; give one or the other")
+        v = VARIANTS[args.variant]
+        args.scans, args.odometry, args.vo_leg_odometry, args.lo_constraints = (
+            v.scans,
+            v.odometry,
+            v.vo_coupling,
+            v.lo_constraints,
+        )
+        return
+    for key, default in zip(keys, ("stabilized", "lo", "guess+restart", "preintegrated"), strict=True):
+        if getattr(args, key) is None:
+            setattr(args, key, default)
+    if args.vo_leg_odometry != "guess+restart" and args.odometry != "vo":
+        raise ValueError("--vo-leg-odometry needs --odometry vo")
+
+
 def _true_maps(args, log_path: Path):
     from jaxquad.io import load_map
 
@@ -113,6 +152,8 @@ def _load(args, path: Path, fmt: str, values: dict, progress=None):
     if fmt in ("carmen", "laser-npz"):
         from jaxquad.slam.run import laser_log_inputs
 
+        if args.variant is not None or args.odometry == "vo":
+            raise ValueError(f"--variant and --odometry vo need a robot log with depth images, not a {fmt} log")
         log = read_carmen(path, args.flaser_fov_deg) if fmt == "carmen" else load_laser_log(path)
         return laser_log_inputs(log), ["robot"], None, "off"
     from jaxquad.estimate.laser import laser_inputs
@@ -130,6 +171,8 @@ def _load(args, path: Path, fmt: str, values: dict, progress=None):
         args.observer_params,
         values["leg_yaw_rate_std"],
         progress,
+        args.odometry,
+        args.vo_leg_odometry,
     )
     n = x["odom"].shape[0]
     fleet = "fallen" in log
@@ -153,6 +196,7 @@ def run(args: argparse.Namespace) -> int:
         raise FileNotFoundError(f"input not found: {path}")
     if args.band_height < 1:
         raise ValueError(f"--band-height must be >= 1, got {args.band_height}")
+    resolve_variant(args)
     check_output_dir(args.out, kind=SUMMARY_KIND)
     values = load_params(args.params)
     fmt = detect_format(path) if args.format == "auto" else args.format
@@ -169,7 +213,9 @@ def run(args: argparse.Namespace) -> int:
         "input": str(path),
         "format": fmt,
         "scans": args.scans if fmt == "robot" else "laser",
+        "variant": args.variant,
         "odometry": args.odometry if fmt == "robot" else "log",
+        "vo_leg_odometry": args.vo_leg_odometry if fmt == "robot" and args.odometry == "vo" else None,
         "lo_constraints": lo_constraints,
         "params_file": str(args.params or DEFAULTS_FILE),
         "params": values,

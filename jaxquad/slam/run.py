@@ -57,7 +57,7 @@ def map_grid(x: dict, resolution: float, max_range: float, margin: float = 2.0) 
     if xy.size == 0:
         raise ValueError("the input has no finite odometry pose")
     lo, hi = xy.min(0) - max_range - margin, xy.max(0) + max_range + margin
-    return grid_spec((lo[0], lo[1], hi[0], hi[1]), resolution, max_range)
+    return grid_spec((float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])), float(resolution), float(max_range))
 
 
 def _inputs(x: dict, start: int, stop: int, size: int) -> online.SlamInputs:

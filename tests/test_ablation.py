@@ -1,0 +1,80 @@
+"""The ablation experiment (experiments/ablation.py): its statistics against closed forms, and a
+CPU smoke run of the whole table (simulate, estimate, depth odometry, SLAM per variant)."""
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+_PATH = Path(__file__).resolve().parents[1] / "experiments" / "ablation.py"
+_spec = importlib.util.spec_from_file_location("ablation", _PATH)
+ablation = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(ablation)
+
+
+def test_statistics_against_closed_forms():
+    v = np.array([0.31, 0.42, 0.28, 0.55, 0.39, np.nan])  # a run without a score is left out
+    s = ablation.statistics(v)
+    x = v[:5]
+    mean = x.sum() / 5
+    std = np.sqrt(((x - mean) ** 2).sum() / 4)
+    half = 2.7764451051977987 * std / np.sqrt(5)  # Student t, 4 degrees of freedom, 97.5 % (tables)
+    assert s["n"] == 5
+    np.testing.assert_allclose([s["mean"], s["std"], *s["ci95"]], [mean, std, mean - half, mean + half], rtol=1e-12)
+    assert ablation.statistics(np.array([np.nan]))["mean"] is None
+
+
+def test_paired_tests_against_closed_forms():
+    from scipy import stats
+
+    a = np.array([0.30, 0.35, 0.28, 0.41, 0.33])
+    b = np.array([0.52, 0.61, 0.49, 0.80, 0.70])
+    out = ablation.paired_tests(a, b)
+    d = a - b
+    t = d.mean() / (d.std(ddof=1) / np.sqrt(5))
+    assert out["n"] == 5 and out["mean_difference"] == pytest.approx(d.mean())
+    assert out["t_test_p"] == pytest.approx(2 * stats.t.sf(abs(t), 4), rel=1e-9)
+    # Exact Wilcoxon signed-rank: all 5 differences of one sign, p = 2 / 2^5 (two-sided).
+    assert out["wilcoxon_p"] == pytest.approx(2 / 32)
+    # Runs one side did not score are not paired; identical columns have no test.
+    b_missing = b.copy()
+    b_missing[0] = np.nan
+    assert ablation.paired_tests(a, b_missing)["n"] == 4
+    assert ablation.paired_tests(a, a)["t_test_p"] is None
+
+
+@pytest.mark.slow
+def test_ablation_smoke_on_cpu(tmp_path):
+    out = tmp_path / "table.json"
+    result = ablation.main(
+        [
+            "--runs",
+            "2",
+            "--seconds",
+            "3",
+            "--variants",
+            "B",
+            "full",
+            "--quiet",
+            "--json",
+            str(out),
+            "--figures",
+            str(tmp_path / "fig"),
+        ]
+    )
+    saved = json.loads(out.read_text())
+    assert saved["cells"][0]["runs"] == 2 and saved["settings"]["variants"] == ["B", "full"]
+    cell = result["cells"][0]
+    standing = 2 - cell["fallen"]
+    assert standing >= 1
+    for name in ("B", "full"):
+        ate = np.array([np.nan if s is None else s for s in cell["scores"][name]["ate"]], float)
+        assert np.isfinite(ate).sum() == standing and np.all(ate[np.isfinite(ate)] > 0)
+        assert cell["statistics"][name]["ate"]["mean"] == pytest.approx(np.nanmean(ate))
+    # The variants differ in scans, odometry and constraints: the same logs give different trajectories.
+    assert cell["scores"]["B"]["ate"] != cell["scores"]["full"]["ate"]
+    assert cell["full_vs"]["B"]["ate"]["n"] == standing
+    figures = sorted(p.name for p in (tmp_path / "fig").iterdir())
+    assert figures == ["map_go2_house_full.png", "trajectories_go2_house.png"]
