@@ -316,29 +316,30 @@ def main(argv: list[str] | None = None) -> dict:
         f"machine: {platform.node()}, {jax.devices()[0].device_kind} ({jax.default_backend()}), jax {jax.__version__}"
     )
     t0 = time.perf_counter()
-    records = []
-    for robot in args.robots:
-        for world in args.worlds:
-            record, figure = run_cell(args, robot, world)
-            records.append(record)
-            if args.figures:
-                draw_figures(Path(args.figures), record, figure)
-    total = time.perf_counter() - t0
-    print(markdown(records, args.variants))
-    print(
-        f"\nwall time {total:.0f} s for {len(records)} cell(s) x {len(args.variants)} variants x {args.runs} runs "
-        f"x {args.seconds:g} s"
-    )
     result = {
         "command": sys.argv if argv is None else ["experiments/ablation.py", *argv],
         "device": jax.devices()[0].device_kind,
         "backend": jax.default_backend(),
-        "wall_s": total,
+        "wall_s": None,
         "settings": {k: v for k, v in vars(args).items() if k not in ("json", "figures", "quiet")},
-        "cells": records,
+        "cells": [],
     }
-    if args.json:
-        write_json(args.json, result)
+    for robot in args.robots:
+        for world in args.worlds:
+            record, figure = run_cell(args, robot, world)
+            result["cells"].append(record)
+            result["wall_s"] = time.perf_counter() - t0
+            if args.json:  # after every cell: a run stopped later keeps the cells it finished
+                write_json(args.json, result)
+            if args.figures:
+                draw_figures(Path(args.figures), record, figure)
+            del figure
+            jax.clear_caches()  # the next cell's robot and world compile their own programs
+    print(markdown(result["cells"], args.variants))
+    print(
+        f"\nwall time {result['wall_s']:.0f} s for {len(result['cells'])} cell(s) x {len(args.variants)} variants x "
+        f"{args.runs} runs x {args.seconds:g} s"
+    )
     return result
 
 

@@ -40,10 +40,10 @@ def slam_map(cfg, world: World) -> OccupancyMap:
     first pose, so the map lies in the world frame; it is copied onto the true map's cells (unknown
     where the SLAM map has none)."""
     from jaxquad.estimate.laser import laser_inputs
-    from jaxquad.kernels.occupancy import OccupancyGrid
     from jaxquad.sim import FleetConfig, rollout
     from jaxquad.sim.routes import plan_loop
     from jaxquad.slam import load_params, map_grid, run_fleet, slam_config, to_occupancy_map
+    from jaxquad.slam.report import robot_slice
 
     loop = cfg.loop_config()
     seconds = cfg.map_walk_seconds
@@ -67,7 +67,7 @@ def slam_map(cfg, world: World) -> OccupancyMap:
     grid = map_grid(x, values["resolution"], values["max_laser_range"])
     spec, params = slam_config(values, grid, "preintegrated" if loop.odometry == "leg" else "off", x["T_base_laser"])
     state, _, _ = run_fleet(spec, params, x)
-    built = to_occupancy_map(spec.grid, OccupancyGrid(state.grid.log_odds[0], state.grid.observed[0]))
+    built = to_occupancy_map(spec.grid, robot_slice(state, 0).grid)  # robot 0: the walk that built the map
     return resample_map(built, occupancy_map(world))
 
 
