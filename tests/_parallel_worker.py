@@ -4,11 +4,9 @@ group (JAXQUAD_* variables) is set before JAX starts: `python _parallel_worker.p
 grid:  grid-search counts on 1 and on 2 devices (a grid size that is not a multiple of the chunk),
        and a vmapped function with time-major output split over 2 devices.
 fleet: a 3-robot fleet (padding to 4 on 2 devices) simulated on 1 and on 2 devices, and the 1-device
-       log estimated on 1 and on 2 devices; that log is also written to OUT.log.npz.
+       log estimated on 1 and on 2 devices.
 multiprocess: one of two processes: the grid on the devices of both, and a time-major (T, N) array
        split over its robot axis gathered piece by piece; process 0 writes OUT.
-fleet_multiprocess LOG: one of two processes: the fleet of `fleet` simulated on both, and the log LOG
-       estimated on both; process 0 writes OUT.
 """
 
 from __future__ import annotations
@@ -87,31 +85,15 @@ def _estimate(log, devices) -> dict:
 
 
 def fleet(out: str) -> None:
-    from jaxquad.io import save_log
     from jaxquad.sim import rollout
 
     res, logs = {}, {}
     for d in (1, 2):
         logs[d] = rollout(_fleet_config(d), 0.25, progress=False)
         res |= {f"d{d}_{k}": np.asarray(logs[d][k]) for k in FLEET_KEYS}
-    save_log(out + ".log.npz", logs[1])
     for d in (1, 2):  # the same log on 1 and 2 devices
         res |= {f"d{d}_{k}": v for k, v in _estimate(logs[1], d).items()}
     np.savez(out, **res)
-
-
-def fleet_multiprocess(out: str, log_path: str) -> None:
-    from jaxquad import parallel
-    from jaxquad.io import load_log
-    from jaxquad.sim import rollout
-
-    parallel.initialize()
-    log = rollout(_fleet_config(None), 0.25, progress=False)  # 3 robots on 2 processes: one padding copy
-    res = _estimate(load_log(log_path), None)
-    if parallel.is_main():
-        np.savez(out, **res, **{k: np.asarray(log[k]) for k in FLEET_KEYS})
-    else:
-        assert log is None
 
 
 def multiprocess(out: str) -> None:
@@ -130,5 +112,5 @@ def multiprocess(out: str) -> None:
 
 
 if __name__ == "__main__":
-    scenarios = {"grid": grid, "fleet": fleet, "multiprocess": multiprocess, "fleet_multiprocess": fleet_multiprocess}
+    scenarios = {"grid": grid, "fleet": fleet, "multiprocess": multiprocess}
     scenarios[sys.argv[1]](*sys.argv[2:])

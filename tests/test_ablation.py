@@ -55,7 +55,7 @@ def test_ablation_smoke_on_cpu(tmp_path):
             "--seconds",
             "3",
             "--variants",
-            "B",
+            "B+LO",
             "full",
             "--quiet",
             "--json",
@@ -65,16 +65,16 @@ def test_ablation_smoke_on_cpu(tmp_path):
         ]
     )
     saved = json.loads(out.read_text())
-    assert saved["cells"][0]["runs"] == 2 and saved["settings"]["variants"] == ["B", "full"]
+    assert saved["cells"][0]["runs"] == 2 and saved["settings"]["variants"] == ["B+LO", "full"]
     cell = result["cells"][0]
     standing = 2 - cell["fallen"]
     assert standing >= 1
-    for name in ("B", "full"):
+    for name in ("B+LO", "full"):
         ate = np.array([np.nan if s is None else s for s in cell["scores"][name]["ate"]], float)
         assert np.isfinite(ate).sum() == standing and np.all(ate[np.isfinite(ate)] > 0)
         assert cell["statistics"][name]["ate"]["mean"] == pytest.approx(np.nanmean(ate))
-    # The variants differ in scans, odometry and constraints: the same logs give different trajectories.
-    assert cell["scores"]["B"]["ate"] != cell["scores"]["full"]["ate"]
-    assert cell["full_vs"]["B"]["ate"]["n"] == standing
+    # The two differ in their scans only (baseline vs stabilized): the same logs, different trajectories.
+    assert cell["scores"]["B+LO"]["ate"] != cell["scores"]["full"]["ate"]
+    assert cell["full_vs"]["B+LO"]["ate"]["n"] == standing
     figures = sorted(p.name for p in (tmp_path / "fig").iterdir())
-    assert figures == ["map_go2_house_full.png", "trajectories_go2_house.png"]
+    assert figures == ["map_go2_house_B_LO.png", "map_go2_house_full.png", "trajectories_go2_house.png"]

@@ -198,12 +198,3 @@ def test_fleet_same_on_two_devices(fleet_run):
     assert r["d1_q"].shape[:2] == (3, 64) and r["d1_depth"].shape == (3, 8, 12, 16) and not r["d1_fallen"].any()
     for k in [f[3:] for f in r.files if f.startswith("d1_")]:
         _close(r[f"d2_{k}"], r[f"d1_{k}"], k)
-
-
-@pytest.mark.slow
-def test_fleet_on_two_processes(fleet_run, tmp_path):
-    out = tmp_path / "mp.npz"
-    _two_processes("fleet_multiprocess", str(out), str(fleet_run) + ".log.npz", timeout=900)
-    r, ref = np.load(out), np.load(fleet_run)
-    for k in r.files:
-        _close(r[k], ref[f"d1_{k}"], k)
