@@ -368,7 +368,7 @@ def test_go2_with_library_momentum_terms(record_property):
             window = (t >= t0) & (t < t1)
             err = np.abs(est.force_z[window] - truth).max(axis=0)
             assert np.all(err <= 0.02 * np.where(truth > 0, truth, _FORCE_BEFORE.max())), (mode, t0, err)
-        record_property(f"go2_lag_{mode}_ms", round(1e3 * _detection_lag(est, t), 3))
+        record_property(f"go2_lag_{mode}_ms", round(float(1e3 * _detection_lag(est, t)), 3))
 
 
 @pytest.mark.parametrize("mode", ["plain", "mixed"])
@@ -397,7 +397,7 @@ def test_mixed_mode_detects_a_force_step_sooner_than_plain(quad, quad_estimates,
         est = quad_estimates[mode]
         assert not est.contact[(t > 0.3) & (t < _T_STEP), 3].any()  # no false contact before the step
         assert est.contact[t >= _T_STEP + 0.1, 3].all()
-        record_property(f"lag_{mode}_ms", round(1e3 * lags[mode], 3))
+        record_property(f"lag_{mode}_ms", round(float(1e3 * lags[mode]), 3))
     print(
         f"\ncontact detection lag after a 0 -> 25 N step (b = 30 rad/s, dt = 2 ms): "
         f"plain {1e3 * lags['plain']:.1f} ms, mixed {1e3 * lags['mixed']:.1f} ms"
