@@ -80,7 +80,8 @@ def _variant_inputs(log, est, robot, variants, values: dict, every: int) -> dict
 
     rmax = values["max_laser_range"]
     base = leg_laser_inputs(log, est, "stabilized", 5, 0.2, rmax, values["leg_yaw_rate_std"])
-    scans, odom = {}, {"lo": base["odom"]}
+    # `base` already holds the stabilized scans and the leg-inertial odometry: each is computed once.
+    scans, odom = {"stabilized": (base["ranges"], base["bearings"])}, {"lo": base["odom"]}
     for name in variants:
         v = VARIANTS[name]
         if v.scans not in scans:
