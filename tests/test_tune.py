@@ -5,6 +5,7 @@ whose feet receive a known trot-like schedule of vertical forces, with noisy tor
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 
@@ -71,7 +72,7 @@ def _reference_terms(m, d_fd, qpos, qvel, tau_joints, dof_adr):
 
 def _simulate(robot, phase: float, seed: int):
     """One robot: its log (single-robot format) and exact observer inputs at every sample."""
-    m = robot.mj_model
+    m = copy.copy(robot.mj_model)  # the loaded model is cached and shared with the simulator tests
     m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
     m.opt.timestep = _SIM_DT
     d, d_fd = mujoco.MjData(m), mujoco.MjData(m)
