@@ -4,6 +4,7 @@ on each robot in each world, on the same simulated logs.
     python experiments/ablation.py --runs 100 --robots go2 badger --worlds house warehouse --seconds 60
         [--variants B B+LO B+SS full full+level] [--contacts mixed] [--style aggressive] [--seed 0]
         [--scan-hz 10] [--json table.json] [--figures DIR]
+    python experiments/ablation.py --merge go2_house.json go2_warehouse.json ... [--json table.json]
 
 Per robot x world cell: one fleet of `--runs` robots, each in its own generated world with its own
 seed (`jaxquad.sim.rollout`, depth on), is simulated once; the estimator runs once (leg-inertial
@@ -19,6 +20,9 @@ scored where the walk is over twice as long). Printed as Markdown: mean +- std o
 against it on the runs both scored (paired t-test and Wilcoxon signed-rank, two-sided). --json saves
 every run's scores and the statistics; --figures writes per cell the maps of run 0 with and without
 stabilization (B+LO and full, beside the true map) and run 0's trajectories.
+
+--merge prints the one table of cells run separately (one cell per job where a job's time is limited);
+their variants must agree, and the wall time printed is the sum of theirs.
 """
 
 from __future__ import annotations
@@ -275,6 +279,47 @@ def draw_figures(folder: Path, record: dict, figure: dict) -> None:
     plt.close(fig)
 
 
+def merge(paths: list[str]) -> dict:
+    """The cells of several saved results as one result (variants checked alike, wall times summed)."""
+    import json
+
+    results = []
+    for path in paths:
+        try:
+            results.append(json.loads(Path(path).read_text()))
+        except (OSError, ValueError) as e:
+            raise ValueError(f"{path}: not a saved ablation result ({e})") from None
+        if not isinstance(results[-1], dict) or "cells" not in results[-1] or "settings" not in results[-1]:
+            raise ValueError(f"{path}: not a saved ablation result (no 'cells' or 'settings')")
+    variants = results[0]["settings"]["variants"]
+    for path, r in zip(paths, results):
+        if r["settings"]["variants"] != variants:
+            raise ValueError(f"{path}: variants {r['settings']['variants']} differ from {paths[0]}'s {variants}")
+    return {
+        "merged": list(paths),
+        "device": sorted({r["device"] for r in results}),
+        "wall_s": float(sum(r["wall_s"] or 0.0 for r in results)),
+        "settings": results[0]["settings"],
+        "cells": [c for r in results for c in r["cells"]],
+    }
+
+
+def _merge_main(paths: list[str], json_path: str | None) -> dict:
+    from jaxquad.io import write_json
+
+    result = merge(paths)
+    if json_path:
+        write_json(json_path, result)
+    print(markdown(result["cells"], result["settings"]["variants"]))
+    runs = sorted({c["runs"] for c in result["cells"]})
+    seconds = sorted({c["seconds"] for c in result["cells"]})
+    print(
+        f"\nwall time {result['wall_s']:.0f} s (summed) for {len(result['cells'])} cell(s) x "
+        f"{len(result['settings']['variants'])} variants x {runs} runs x {seconds} s on {', '.join(result['device'])}"
+    )
+    return result
+
+
 def main(argv: list[str] | None = None) -> dict:
     from jaxquad.slam.variants import VARIANTS
 
@@ -300,7 +345,13 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--json", default=None, help="write every run's scores and the statistics here")
     p.add_argument("--figures", default=None, help="folder for the map and trajectory figures")
     p.add_argument("--quiet", action="store_true", help="no progress output on stderr")
+    p.add_argument("--merge", nargs="+", default=None, metavar="JSON", help="print one table of saved results")
     args = p.parse_args(argv)
+    if args.merge:
+        try:
+            return _merge_main(args.merge, args.json)
+        except ValueError as e:
+            p.error(str(e))
     if args.runs < 2:
         p.error("--runs must be >= 2 (a standard deviation and a paired test need two runs)")
     if not (args.seconds > 0 and args.scan_hz > 0):

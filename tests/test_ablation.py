@@ -78,3 +78,46 @@ def test_ablation_smoke_on_cpu(tmp_path):
     assert cell["full_vs"]["B+LO"]["ate"]["n"] == standing
     figures = sorted(p.name for p in (tmp_path / "fig").iterdir())
     assert figures == ["map_go2_house_B_LO.png", "map_go2_house_full.png", "trajectories_go2_house.png"]
+
+
+def _saved(path, robot, variants, wall_s, rng):
+    """A saved one-cell result as main() writes it, with random scores."""
+    scores = {v: {m: list(rng.uniform(0.1, 2.0, 3)) for m in ablation.METRICS} for v in variants}
+    arr = lambda v, m: np.array(scores[v][m])  # noqa: E731
+    record = {
+        "robot": robot,
+        "world": "house",
+        "runs": 3,
+        "fallen": 0,
+        "seconds": 20.0,
+        "scores": scores,
+        "statistics": {v: {m: ablation.statistics(arr(v, m)) for m in ablation.METRICS} for v in variants},
+        "full_vs": {
+            v: {m: ablation.paired_tests(arr("full", m), arr(v, m)) for m in ablation.METRICS}
+            for v in variants
+            if v != "full"
+        },
+    }
+    path.write_text(
+        json.dumps({"device": "cpu", "wall_s": wall_s, "settings": {"variants": variants}, "cells": [record]})
+    )
+    return record
+
+
+def test_merge_joins_cells_run_apart(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    a = _saved(tmp_path / "a.json", "go2", ["B+LO", "full"], 10.0, rng)
+    b = _saved(tmp_path / "b.json", "badger", ["B+LO", "full"], 32.5, rng)
+    out = tmp_path / "table.json"
+    merged = ablation.main(["--merge", str(tmp_path / "a.json"), str(tmp_path / "b.json"), "--json", str(out)])
+    assert [c["robot"] for c in merged["cells"]] == ["go2", "badger"] and merged["wall_s"] == 42.5
+    assert json.loads(out.read_text())["cells"][1]["scores"] == b["scores"]
+    text = capsys.readouterr().out
+    mean = a["statistics"]["full"]["ate"]["mean"]
+    assert "| go2 | house | 3 | ate |" in text and f"{mean:.2f} +- " in text and "| badger | house |" in text
+    _saved(tmp_path / "c.json", "go2", ["B", "full"], 1.0, rng)
+    with pytest.raises(SystemExit):  # variants differ: one table cannot hold both
+        ablation.main(["--merge", str(tmp_path / "a.json"), str(tmp_path / "c.json")])
+    (tmp_path / "d.json").write_text("[1, 2]")
+    with pytest.raises(SystemExit):
+        ablation.main(["--merge", str(tmp_path / "d.json")])
