@@ -279,6 +279,7 @@ CASES = {
         ("explore --out {new} --seconds -5", ["--seconds"]),
         ("explore --out {new} --seconds nan", ["--seconds"]),
         ("explore --out {new} --chunk-ticks 15", ["--chunk-ticks", "10"]),
+        ("explore --out {new} --map-range 0", ["--map-range"]),
         ("explore --out {new} --slam-params {bad_yaml}", ["bad.yaml", "bandwidth"]),
         ("explore --out {new} --slam-params {missing}", ["missing.npz"]),
         ("explore --robots 2", ["--out"]),

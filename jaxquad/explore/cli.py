@@ -44,6 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--slam-params", default=None, help="SLAM parameters (YAML, any subset of jaxquad/slam/slam.yaml; default none)"
     )
     parser.add_argument(
+        "--map-range", type=float, default=4.0, help="readings beyond this are no-returns for the map, m (default 4)"
+    )
+    parser.add_argument(
         "--chunk-ticks",
         type=int,
         default=50,
@@ -75,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"{option} must be >= 1, got {value}")
     if args.chunk_ticks % REPLAN_TICKS:
         raise ValueError(f"--chunk-ticks must be a multiple of {REPLAN_TICKS}, got {args.chunk_ticks}")
-    for option, value in (("--seconds", args.seconds), ("--every", args.every)):
+    for option, value in (("--seconds", args.seconds), ("--every", args.every), ("--map-range", args.map_range)):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"{option} must be a positive number, got {value}")
     check_output_dir(args.out, kind=SUMMARY_KIND)
@@ -91,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
         horizon=args.horizon,
         chunk_ticks=args.chunk_ticks,
         slam_params=args.slam_params,
+        map_range=args.map_range,
         trace_robots=max(args.plot_robots, 1),
     )
     with progress_bar("explore", "sim s") as progress:

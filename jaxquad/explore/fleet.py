@@ -34,6 +34,7 @@ from jaxquad.nav import navigate as nav
 
 VARIANTS = {"full": ("leg", "stabilized", "preintegrated"), "baseline": ("visual", "baseline", "off")}
 REPLAN_TICKS = 10  # control ticks between two planning periods (0.96 s)
+SCAN_RANGE = 8.0  # m, the scans' range limit (the depth camera's); scan matching reads up to match_max_range
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,7 +50,8 @@ class ExploreConfig:
     horizon: int = 30  # MPPI steps (of one control tick each)
     chunk_ticks: int = 50  # control ticks per compiled chunk (a multiple of REPLAN_TICKS)
     slam_params: str | None = None  # SLAM parameter file (None: jaxquad/slam/slam.yaml)
-    clearance: float = 0.5  # m from every box for the starts
+    clearance: float = 0.75  # m from every box for the starts (a robot turning in place sweeps ~0.4 m)
+    map_range: float = 4.0  # m: longer readings are no-returns for the map (depth noise, 1 % of z^2, is 16 cm at 4 m)
     spin_rate: float = 0.6  # rad/s, turning in place without a frontier goal
     finish_time: float = 12.0  # s without a frontier before exploration counts as finished (one turn and more)
     contacts: str = "truth"  # the estimator's contact source
@@ -63,7 +65,7 @@ class ExploreConfig:
         for name in ("n_robots", "samples", "horizon", "chunk_ticks", "band_height", "trace_robots"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("seconds", "spin_rate", "finish_time"):
+        for name in ("seconds", "spin_rate", "finish_time", "map_range"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
         if self.chunk_ticks % REPLAN_TICKS:
@@ -77,10 +79,12 @@ class ExploreConfig:
         )
 
     def slam_values(self) -> dict:
-        """The SLAM parameters, with node slots for a node every `minimum_time_interval` of the run."""
+        """The SLAM parameters, with node slots for a node every `minimum_time_interval` of the run and the map's
+        range at most `map_range`."""
         values = slam.load_params(self.slam_params)
         nodes = math.ceil(self.seconds / max(values["minimum_time_interval"], 0.1)) + 2
-        return values | {"node_capacity": max(values["node_capacity"] if self.slam_params else 0, nodes)}
+        nodes = max(values["node_capacity"] if self.slam_params else 0, nodes)
+        return values | {"node_capacity": nodes, "max_laser_range": min(values["max_laser_range"], self.map_range)}
 
 
 @dataclasses.dataclass
@@ -131,7 +135,7 @@ def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_d
         explore=nav_explore.ExploreParams.default(free_thresh=50.0),
         slam_spec=spec,
         slam=slam_params,
-        body=body_params(fleet, loop.odometry, 0.2, values["max_laser_range"]),
+        body=body_params(fleet, loop.odometry, 0.2, SCAN_RANGE),
         yaw_rate_std=f32(values["leg_yaw_rate_std"]),
         spin_rate=f32(cfg.spin_rate),
         finish_time=f32(cfg.finish_time),
@@ -232,7 +236,7 @@ def explore(cfg: ExploreConfig, starts: np.ndarray | None = None, progress=None)
         ended = np.asarray(states.outcome) != xl.RUNNING
         run_s += time.perf_counter() - t1  # the outputs' copy to the host included
         if progress is not None:
-            progress(min(cfg.seconds, (k + 1) * cfg.chunk_ticks * tick_dt), cfg.seconds)
+            progress(round(min(cfg.seconds, (k + 1) * cfg.chunk_ticks * tick_dt), 1), cfg.seconds)
         if ended.all():
             break
     maps, nodes, loops = jax.device_get(finish(params, states))
