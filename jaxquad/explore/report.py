@@ -43,6 +43,14 @@ def coverage_samples(result, every: float = 5.0) -> tuple[np.ndarray, np.ndarray
     return times, result.coverage[k]
 
 
+def _final_coverage(result) -> np.ndarray:
+    """(N,) coverage of each robot's final map."""
+    import jax.numpy as jnp
+
+    reachable = jnp.asarray(result.reachable)
+    return np.array([float(coverage(jnp.asarray(m), reachable)) for m in result.maps])
+
+
 def final_maps(result) -> list:
     from jaxquad.io.maps import OccupancyMap
 
@@ -54,7 +62,7 @@ def summarize(result, every: float = 5.0) -> dict:
     from jaxquad.metrics import map_scores
 
     cfg, n = result.config, result.outcome.shape[0]
-    final = np.array([float(coverage(m, result.reachable)) for m in result.maps])
+    final = _final_coverage(result)
     scores = [dataclasses.asdict(map_scores(m, result.truth)) for m in final_maps(result)]
     times, cov_t = coverage_samples(result, every)
     per_robot = []
@@ -122,7 +130,7 @@ def plot_maps(result, path, max_robots: int = 4) -> None:
     extent = (x0, x0 + cols * occ.resolution, y0, y0 + rows * occ.resolution)
     m = max(1, min(max_robots, result.maps.shape[0], result.true_pose.shape[1]))
     fig, axes = plt.subplots(1, m, figsize=(5 * m, 5 * rows / max(cols, 1) + 0.8), squeeze=False)
-    final = [float(coverage(g, result.reachable)) for g in result.maps[:m]]
+    final = _final_coverage(result)
     for i, ax in enumerate(axes[0]):
         grid = result.maps[i]
         ax.imshow(np.where(grid < 0, 0.8, 1.0 - np.clip(grid, 0, 100) / 100.0), cmap="gray", vmin=0, vmax=1,
