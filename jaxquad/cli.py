@@ -34,6 +34,10 @@ _COMMANDS: dict[str, tuple[str, str]] = {
         "jaxquad.nav.cli",
         "closed-loop navigation of a simulated fleet to random goals (JSON summary, paths)",
     ),
+    "explore": (
+        "jaxquad.explore.cli",
+        "autonomous frontier exploration of an unknown world by a simulated fleet (coverage, maps, JSON summary)",
+    ),
     "localize": (
         "jaxquad.localize.cli",
         "AMCL localization of a log's robots on a saved map (TUM, npz, JSON summary with errors)",

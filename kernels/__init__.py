@@ -15,7 +15,15 @@ from jaxquad.kernels.likelihood_field import (
 )
 from jaxquad.kernels.loop_closure import LoopCandidate, LoopParams, LoopSpec, find_loop_closure
 from jaxquad.kernels.mppi import MppiInputs, MppiOutput, MppiParams, MppiState
-from jaxquad.kernels.occupancy import GridSpec, OccupancyGrid, OccupancyParams, init_grid, insert_scan, map_from_scans
+from jaxquad.kernels.occupancy import (
+    GridSpec,
+    OccupancyGrid,
+    OccupancyParams,
+    init_grid,
+    insert_scan,
+    map_from_scans,
+    occupancy_values,
+)
 from jaxquad.kernels.particle_filter import (
     AmclInputs,
     AmclOutput,
@@ -116,6 +124,7 @@ __all__ = [
     "likelihood_field",
     "likelihood_grid",
     "map_from_scans",
+    "occupancy_values",
     "match_scan",
     "measurement_update",
     "nearest_open_cell",

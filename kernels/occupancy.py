@@ -24,7 +24,7 @@ import math
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int8
 
 
 class GridSpec(eqx.Module):
@@ -128,6 +128,12 @@ def insert_scan(
     delta = jnp.where(codes == 2, params.l_occ, jnp.where(codes == 1, params.l_free, 0.0))
     log_odds = jnp.clip(grid.log_odds + delta.astype(grid.log_odds.dtype), params.l_min, params.l_max)
     return OccupancyGrid(log_odds, grid.observed | (codes > 0))
+
+
+def occupancy_values(grid: OccupancyGrid) -> Int8[Array, "rows cols"]:
+    """The map format's cell values: -1 where no ray went, else round(100 p) with p = 1 / (1 + exp(-log_odds))."""
+    p = 1.0 / (1.0 + jnp.exp(-grid.log_odds))
+    return jnp.where(grid.observed, jnp.rint(100.0 * p), -1.0).astype(jnp.int8)
 
 
 def map_from_scans(

@@ -26,14 +26,16 @@ def pose2d(p: np.ndarray, q_wxyz: np.ndarray) -> np.ndarray:
     return np.concatenate([p[..., :2], np.asarray(yaw_of(jnp.asarray(q_wxyz)))[..., None]], -1)
 
 
+def planar_twist(q_wxyz, v_base, omega_base, cov_v_base, yaw_rate_std):
+    """One sample's leg-odometry twist in the plane, (vx, vy, yaw rate) and its 3x3 covariance (module doc)."""
+    R = R_level_base(*roll_pitch(q_wxyz))
+    cov = jnp.zeros((3, 3)).at[:2, :2].set(R[:2] @ cov_v_base @ R[:2].T).at[2, 2].set(yaw_rate_std**2)
+    return jnp.concatenate([(R @ v_base)[:2], (R @ omega_base)[2:]]), cov
+
+
 @jax.jit
 def _planar_twist(q_wxyz, v_base, omega_base, cov_v_base, yaw_rate_std):
-    def one(q, v, w, cov):
-        R = R_level_base(*roll_pitch(q))
-        cov2 = jnp.zeros((3, 3)).at[:2, :2].set(R[:2] @ cov @ R[:2].T).at[2, 2].set(yaw_rate_std**2)
-        return jnp.concatenate([(R @ v)[:2], (R @ w)[2:]]), cov2
-
-    return jax.vmap(one)(q_wxyz, v_base, omega_base, cov_v_base)
+    return jax.vmap(planar_twist, in_axes=(0, 0, 0, 0, None))(q_wxyz, v_base, omega_base, cov_v_base, yaw_rate_std)
 
 
 ODOMETRY_KINDS = ("lo", "vo")

@@ -32,24 +32,16 @@ from typing import NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
-from jaxquad import vo
-from jaxquad.estimate.inputs import R_base_imu
-from jaxquad.estimate.pipeline import PipelineConfig, PipelineParams, PipelineSample, pipeline_init, pipeline_step
 from jaxquad.kernels.costmap import CostGrid
-from jaxquad.kernels.footprint import footprint_overlaps
-from jaxquad.kernels.lie import SE3, SO3, roll_pitch, wrap_angle, yaw_of
 from jaxquad.kernels.likelihood_field import LikelihoodField
 from jaxquad.kernels.particle_filter import AmclInputs, AmclParams, AmclState, amcl_init, amcl_step
-from jaxquad.kernels.scan import CameraIntrinsics, baseline_scan, stabilized_scan
 from jaxquad.nav import navigate as nav
+from jaxquad.nav.body import ODOMETRY, SCANS, Body, BodyParams, make_body, pose_error
 
 OUTCOMES = ("pending", "reached", "missed", "collided", "lost", "timeout", "fallen", "skipped")
 PENDING, REACHED, MISSED, COLLIDED, LOST, TIMEOUT, FALLEN, SKIPPED = range(len(OUTCOMES))
-ODOMETRY = ("leg", "visual")
-SCANS = ("stabilized", "baseline")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,13 +73,7 @@ class LoopParams(eqx.Module):
 
     nav: nav.NavParams
     amcl: AmclParams
-    pipeline: PipelineParams
-    vo: vo.VoParams | None  # with odometry="visual"
-    intrinsics: CameraIntrinsics
-    range_min: Float[Array, ""]  # m, scan limits
-    range_max: Float[Array, ""]
-    footprint_center: Float[Array, " 2"]  # m, centre of the robot's footprint rectangle in the base frame
-    footprint_half: Float[Array, " 2"]  # m, its half length and width
+    body: BodyParams  # on-board estimation, scans and the footprint judged for collisions
     success_xy: Float[Array, ""]  # m, true distance to the goal at arrival for a success
     success_yaw: Float[Array, ""]  # rad
     lost_error: Float[Array, ""]  # m
@@ -113,10 +99,7 @@ class LoopInputs(eqx.Module):
 
 
 class LoopState(eqx.Module):
-    sim: object  # sim.RobotState
-    est: object  # estimate.PipelineState
-    vo: object  # vo.VoState, or None
-    R_gyro: Float[Array, "3 3"]  # IMU rotation integrated since the last frame (visual odometry's prior)
+    body: Body  # the simulated robot and its on-board estimation
     amcl: AmclState
     pose: Float[Array, " 3"]  # localization estimate x, y (m), yaw (rad), world (= map) frame
     nav: nav.NavState
@@ -151,66 +134,10 @@ class LoopFunctions(NamedTuple):
     tick: Callable  # (params, state, inputs) -> (state, LoopOutput)
 
 
-def _planar(p, q) -> Float[Array, " 3"]:
-    return jnp.stack([p[0], p[1], yaw_of(q)])
-
-
-def _pose_error(a, b) -> tuple[Float[Array, ""], Float[Array, ""]]:
-    return jnp.hypot(a[0] - b[0], a[1] - b[1]), jnp.abs(wrap_angle(a[2] - b[2]))
-
-
 def make_loop(fleet, config: LoopConfig) -> LoopFunctions:
     """The loop's pure functions for `fleet` (a `jaxquad.sim.Fleet` with depth; static parts closed over)."""
-    fns, robot = fleet.functions, fleet.robot
-    if not fleet.config.depth:
-        raise ValueError("the closed loop needs the depth camera (FleetConfig.depth=True)")
-    pcfg = PipelineConfig(contacts=config.contacts, has_qd=True, has_attitude=True)
-    log_dt, logs_per_frame, log_every = float(fleet.log_dt), int(fleet.logs_per_frame), int(fleet.config.log_every)
+    body = make_body(fleet, config.odometry, config.scans, config.band_height, config.contacts)
     frame_dt = float(fleet.frame_dt)
-    T_bc = np.asarray(fleet.T_base_camera, np.float64)
-    R_imu_cam = jnp.asarray(np.asarray(R_base_imu(robot)).T @ T_bc[:3, :3], jnp.float32)
-    visual = config.odometry == "visual"
-
-    def physics(model, setup, s, cmd):
-        return jax.lax.fori_loop(0, log_every, lambda _, r: fns.drive(model, setup, r, cmd), s)
-
-    def estimator_sample(smp: dict, dt) -> PipelineSample:
-        return PipelineSample(
-            dt=jnp.asarray(dt, jnp.float32),
-            q=smp["q"],
-            qd=smp["qd"],
-            tau=smp["tau"],
-            gyro=smp["gyro"],
-            acc=smp["acc"],
-            quat_wxyz=smp["quat_wxyz"],
-            contact_weight=smp["gt_contact"].astype(jnp.float32),
-            valid=smp["valid"],
-        )
-
-    def true_pose(sim) -> Float[Array, " 3"]:
-        q = sim.data.qpos[robot.base_qpos_adr : robot.base_qpos_adr + 7]
-        return _planar(q[:3], q[3:])
-
-    def scan_of(params: LoopParams, est, depth):
-        if config.scans == "stabilized":
-            roll, pitch = roll_pitch(est.pose.q_world_base)
-            return stabilized_scan(
-                depth, params.intrinsics, roll, pitch, config.band_height, params.range_min, params.range_max
-            )
-        return baseline_scan(depth, params.intrinsics, config.band_height, params.range_min, params.range_max)
-
-    def leg_T(est) -> Float[Array, "4 4"]:
-        return SE3.from_rotation_and_translation(SO3(est.pose.q_world_base), est.pose.p_world_base).as_matrix()
-
-    def odometry(params: LoopParams, s: LoopState, depth):
-        """(vo state, planar odometry pose) at a frame."""
-        if not visual:
-            return None, _planar(s.est.pose.p_world_base, s.est.pose.q_world_base)
-        R_cam = R_imu_cam.T @ s.R_gyro @ R_imu_cam
-        vo_state, out = vo.step(
-            params.vo, s.vo, vo.VoInputs(depth=depth, R_prev_cur_gyro=R_cam, T_world_base_leg=leg_T(s.est))
-        )
-        return vo_state, _planar(out.T_world_base[:3, 3], SO3.from_matrix(out.T_world_base[:3, :3]).wxyz)
 
     def time_limit(params: LoopParams, m: NavMap, gid, pose):
         rc = m.grid.cell_of(pose[:2])
@@ -221,35 +148,26 @@ def make_loop(fleet, config: LoopConfig) -> LoopFunctions:
 
     def init(params: LoopParams, inputs: LoopInputs, qpos0, key) -> LoopState:
         k_sim, k_amcl, k_step, key = jax.random.split(key, 4)
-        sim = fns.init(inputs.model, inputs.setup, qpos0, k_sim)
-        sim = physics(inputs.model, inputs.setup, sim, jnp.zeros(3))  # fills the derived quantities
-        sim, smp = fns.sample(inputs.model, inputs.setup, sim)
-        first = estimator_sample(smp, 0.0)
-        gt = smp["gt_pose"]
-        est = pipeline_init(robot, pcfg, params.pipeline, first, gt[:3], yaw_of(gt[3:]))
-        est, _ = pipeline_step(robot, pcfg, params.pipeline, est, first)
-        sim, depth = fns.camera(inputs.model, inputs.setup, sim)
-        start = true_pose(sim)
+        b, depth = body.start(params.body, inputs.model, inputs.setup, qpos0, k_sim)
+        start = body.true_pose(b.sim)
         # The operator gives AMCL the start pose (AMCL then spreads its particles around it).
         amcl = amcl_init(params.amcl, inputs.nav_map.field, start, k_amcl, config.n_particles)
-        odom = _planar(est.pose.p_world_base, est.pose.q_world_base)
-        vo_state = vo.init(params.vo, depth, leg_T(est)) if visual else None
-        scan = scan_of(params, est, depth)
+        scan = body.scan(params.body, b.est, depth)
         amcl, out = amcl_step(
-            params.amcl, inputs.nav_map.field, amcl, AmclInputs(odom, scan.ranges, scan.bearings, k_step)
+            params.amcl,
+            inputs.nav_map.field,
+            amcl,
+            AmclInputs(body.leg_pose(b.est), scan.ranges, scan.bearings, k_step),
         )
         G = config.n_goals
         return LoopState(
-            sim=sim,
-            est=est,
-            vo=vo_state,
-            R_gyro=jnp.eye(3),
+            body=b,
             amcl=amcl,
             pose=out.pose,
             nav=nav.init(params.nav, out.pose),
             cmd=jnp.zeros(3),
             goal=jnp.zeros((), jnp.int32),
-            attempt_start=sim.t,
+            attempt_start=b.sim.t,
             limit=time_limit(params, inputs.nav_map, inputs.goal_ids[0], out.pose),
             outcome=jnp.zeros(G, jnp.int32),
             elapsed=jnp.full(G, jnp.nan),
@@ -260,34 +178,16 @@ def make_loop(fleet, config: LoopConfig) -> LoopFunctions:
         )
 
     def frame(params: LoopParams, inputs: LoopInputs, s: LoopState):
-        def sample_period(s: LoopState, _):
-            sim = physics(inputs.model, inputs.setup, s.sim, s.cmd)
-            sim, smp = fns.sample(inputs.model, inputs.setup, sim)
-            est, _ = pipeline_step(robot, pcfg, params.pipeline, s.est, estimator_sample(smp, log_dt))
-            g = jnp.where(jnp.isfinite(smp["gyro"]), smp["gyro"], 0.0)
-            R_gyro = s.R_gyro @ SO3.exp(g * log_dt).as_matrix() if visual else s.R_gyro
-            return dataclasses.replace(s, sim=sim, est=est, R_gyro=R_gyro), None
-
-        s, _ = jax.lax.scan(sample_period, s, None, length=logs_per_frame)
-        sim, depth = fns.camera(inputs.model, inputs.setup, s.sim)
-        vo_state, odom = odometry(params, s, depth)
-        scan = scan_of(params, s.est, depth)
+        b, depth, odom = body.frame(params.body, inputs.model, inputs.setup, s.body, s.cmd)
+        scan = body.scan(params.body, b.est, depth)
         key, k_amcl = jax.random.split(s.key)
         amcl, out = amcl_step(
             params.amcl, inputs.nav_map.field, s.amcl, AmclInputs(odom, scan.ranges, scan.bearings, k_amcl)
         )
-        truth = true_pose(sim)
-        err, _ = _pose_error(out.pose, truth)
-        cy, sy = jnp.cos(truth[2]), jnp.sin(truth[2])
-        fc = params.footprint_center
-        center = truth[:2] + jnp.stack([cy * fc[0] - sy * fc[1], sy * fc[0] + cy * fc[1]])
-        rect = jnp.concatenate([center, truth[2:]])
-        hit = jnp.any(footprint_overlaps(inputs.setup.boxes, rect, params.footprint_half))
-        sim = eqx.tree_at(lambda r: r.collided, sim, sim.collided | hit)
+        err, _ = pose_error(out.pose, body.true_pose(b.sim))
+        b = dataclasses.replace(b, sim=body.judge_collision(params.body, inputs.setup, b.sim))
         lost_for = jnp.where(err > params.lost_error, s.lost_for + frame_dt, 0.0)
-        s = dataclasses.replace(
-            s, sim=sim, vo=vo_state, R_gyro=jnp.eye(3), amcl=amcl, pose=out.pose, lost_for=lost_for, key=key
-        )
+        s = dataclasses.replace(s, body=b, amcl=amcl, pose=out.pose, lost_for=lost_for, key=key)
         return s, (err, odom)
 
     def tick(params: LoopParams, s: LoopState, inputs: LoopInputs) -> tuple[LoopState, LoopOutput]:
@@ -307,13 +207,13 @@ def make_loop(fleet, config: LoopConfig) -> LoopFunctions:
             nav.NavInputs(pose=s.pose, goal=goal, grid=m.grid, key=k_nav),
         )
 
-        t, truth = s.sim.t, true_pose(s.sim)
-        d_xy, d_yaw = _pose_error(truth, goal)
+        t, truth = s.body.sim.t, body.true_pose(s.body.sim)
+        d_xy, d_yaw = pose_error(truth, goal)
         on_goal = (d_xy <= params.success_xy) & (d_yaw <= params.success_yaw)
         ended = jnp.select(
             [
-                s.sim.collided,
-                s.sim.fallen,
+                s.body.sim.collided,
+                s.body.sim.fallen,
                 s.lost_for >= params.lost_time - 0.5 * frame_dt,
                 out.arrived,
                 t - s.attempt_start > s.limit,

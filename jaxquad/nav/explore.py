@@ -60,6 +60,17 @@ def init(shape: tuple[int, int]) -> ExploreState:
     )
 
 
+def robot_value(
+    params: ExploreParams, grid: CostGrid, pose: Float[Array, " 3"]
+) -> tuple[Float[Array, "H W"], Float[Array, "H W"]]:
+    """(planner step weights, cost-to-go from the robot's cell) on `grid` (a robot on a blocked cell
+    starts from the nearest open cell within `start_tolerance`)."""
+    h, w = grid.cost.shape
+    weight = step_weights(grid.cost, params.cost_weight)
+    start, _ = nearest_open_cell(weight, grid.cell_of(pose[:2]), params.start_tolerance / grid.resolution)
+    return weight, cost_to_go(weight, jnp.zeros((h, w), bool).at[start[0], start[1]].set(True))
+
+
 def update(
     params: ExploreParams,
     state: ExploreState,
@@ -67,8 +78,10 @@ def update(
     grid: CostGrid,
     pose: Float[Array, " 3"],
     elapsed: float | Float[Array, ""],
+    value: Float[Array, "H W"] | None = None,
 ) -> tuple[ExploreState, FrontierChoice]:
-    """One planning period: progress check, blacklist, new frontier goal. `grid` is `occupancy`'s costmap."""
+    """One planning period: progress check, blacklist, new frontier goal. `grid` is `occupancy`'s costmap;
+    `value` the robot's cost-to-go on it when already computed (`robot_value`)."""
     h, w = occupancy.shape
     distance = jnp.linalg.norm(pose[:2] - state.goal[:2])
     progressed = distance < state.best_distance - params.progress_margin
@@ -80,9 +93,8 @@ def update(
     disk = ((rr - g[0]) ** 2 + (cc - g[1]) ** 2).astype(jnp.float32) <= (params.blacklist_radius / grid.resolution) ** 2
     blacklist = state.blacklist | (give_up & disk)
 
-    weight = step_weights(grid.cost, params.cost_weight)
-    start, _ = nearest_open_cell(weight, grid.cell_of(pose[:2]), params.start_tolerance / grid.resolution)
-    value = cost_to_go(weight, jnp.zeros((h, w), bool).at[start[0], start[1]].set(True))
+    if value is None:
+        _, value = robot_value(params, grid, pose)
     choice = choose_frontier(occupancy, grid.resolution, value, blacklist, params.frontier)
 
     xy = grid.center_of(choice.goal_rc)

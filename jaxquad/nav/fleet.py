@@ -31,6 +31,7 @@ from jaxquad.kernels.scan import CameraIntrinsics
 from jaxquad.nav import closed_loop as cl
 from jaxquad.nav import missions
 from jaxquad.nav import navigate as nav
+from jaxquad.nav.body import BodyParams
 
 VARIANTS = {"full": ("leg", "stabilized"), "baseline": ("visual", "baseline")}
 AMCL_FILE = Path(__file__).with_name("amcl.yaml")
@@ -145,25 +146,34 @@ def _params(cfg: NavConfig, loop: cl.LoopConfig, fleet, occ, tick_dt: float) -> 
     )
     lp = cfg.localize_params()
     T_bc = np.asarray(fleet.T_base_camera)
-    K = np.asarray(fleet.K)
-    center, half = missions.footprint(fleet.robot)
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     return cl.LoopParams(
         nav=nav_params,
         amcl=lp.amcl(T_base_laser=(float(T_bc[0, 3]), float(T_bc[1, 3]), 0.0)),
-        pipeline=PipelineParams.default(len(fleet.robot.foot_names), "mixed"),
-        vo=vo.VoParams.default(K, T_bc, coupling="off") if loop.odometry == "visual" else None,
-        intrinsics=CameraIntrinsics(f32(K[0, 0]), f32(K[1, 1]), f32(K[0, 2]), f32(K[1, 2])),
-        range_min=f32(lp.laser_min_range),
-        range_max=f32(lp.laser_max_range),
-        footprint_center=f32(center),
-        footprint_half=f32(half),
+        body=body_params(fleet, loop.odometry, lp.laser_min_range, lp.laser_max_range),
         success_xy=f32(SUCCESS_XY),
         success_yaw=f32(SUCCESS_YAW),
         lost_error=f32(0.5),
         lost_time=f32(2.0),
         timeout_base=f32(30.0),
         timeout_speed=f32(0.1),
+    )
+
+
+def body_params(fleet, odometry: str, range_min: float, range_max: float) -> BodyParams:
+    """The robot side's numbers: default estimator, visual odometry (`odometry="visual"`), the camera, scan
+    limits (m) and the robot's footprint."""
+    T_bc, K = np.asarray(fleet.T_base_camera), np.asarray(fleet.K)
+    center, half = missions.footprint(fleet.robot)
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    return BodyParams(
+        pipeline=PipelineParams.default(len(fleet.robot.foot_names), "mixed"),
+        vo=vo.VoParams.default(K, T_bc, coupling="off") if odometry == "visual" else None,
+        intrinsics=CameraIntrinsics(f32(K[0, 0]), f32(K[1, 1]), f32(K[0, 2]), f32(K[1, 2])),
+        range_min=f32(range_min),
+        range_max=f32(range_max),
+        footprint_center=f32(center),
+        footprint_half=f32(half),
     )
 
 

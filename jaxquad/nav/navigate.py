@@ -144,6 +144,25 @@ def plan_to(params: NavParams, grid: CostGrid, table: GoalTable, k: Int[Array, "
     )
 
 
+def plan_from_start(
+    params: NavParams,
+    grid: CostGrid,
+    weight: Float[Array, "H W"],
+    value: Float[Array, "H W"],
+    goal_rc: Int[Array, " 2"],
+    pose: Float[Array, " 3"],
+) -> Plan:
+    """The plan from the robot to the open cell `goal_rc`, read off the cost-to-go *from the robot* `value`
+    (rooted at the robot's cell, as exploration computes it to rank frontiers): the descent from the goal
+    cell, reversed. It saves the relaxation rooted at the goal that `plan` runs."""
+    n = params.n_path_points
+    cells, valid, complete = descend(value, weight, goal_rc, n, params.path_stride)
+    count = jnp.sum(valid)
+    cells = cells[jnp.clip(count - 1 - jnp.arange(n), 0, n - 1)]
+    ok = complete & jnp.isfinite(value[goal_rc[0], goal_rc[1]]) & jnp.all(jnp.isfinite(pose))
+    return Plan(path=grid.center_of(cells), valid=(jnp.arange(n) < count) & ok, ok=ok, goal_rc=goal_rc)
+
+
 def init(params: NavParams, pose: Float[Array, " 3"]) -> NavState:
     n = params.n_path_points
     empty = Plan(

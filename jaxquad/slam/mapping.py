@@ -6,7 +6,7 @@ import jax
 import numpy as np
 
 from jaxquad.io.maps import OccupancyMap
-from jaxquad.kernels.occupancy import GridSpec, OccupancyGrid, map_from_scans
+from jaxquad.kernels.occupancy import GridSpec, OccupancyGrid, map_from_scans, occupancy_values
 
 
 def grid_spec(bounds: tuple[float, float, float, float], resolution: float, max_range: float) -> GridSpec:
@@ -31,14 +31,12 @@ def grid_spec_like(occ: OccupancyMap, max_range: float) -> GridSpec:
 
 def to_occupancy_map(spec: GridSpec, grid: OccupancyGrid) -> OccupancyMap:
     """-1 where no ray went, else round(100 p) with p = 1 / (1 + exp(-log_odds)); saves with `save_map`."""
-    log_odds, observed = np.asarray(grid.log_odds, np.float64), np.asarray(grid.observed)
-    if log_odds.shape != (spec.rows, spec.cols):
+    shape = np.shape(grid.log_odds)
+    if shape != (spec.rows, spec.cols):
         raise ValueError(
-            f"grid shape {log_odds.shape} is not the spec's ({spec.rows}, {spec.cols}); "
-            "convert one robot's grid at a time"
+            f"grid shape {shape} is not the spec's ({spec.rows}, {spec.cols}); convert one robot's grid at a time"
         )
-    p = 1.0 / (1.0 + np.exp(-log_odds))
-    values = np.where(observed, np.rint(100.0 * p), -1).astype(np.int8)
+    values = np.asarray(occupancy_values(grid))
     return OccupancyMap(values, spec.resolution, (spec.origin_x, spec.origin_y, 0.0))
 
 

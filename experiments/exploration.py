@@ -1,0 +1,176 @@
+"""Coverage of autonomous exploration against time, baseline against full, for both robots and worlds.
+
+For each robot, world and variant it runs `jaxquad.explore.explore` with a fleet of `--runs` robots,
+each from its own drawn start in the same generated world (seed `--seed`), and reports coverage
+(known-free area of each robot's map over the true reachable free area) every `--every` s: the mean,
+std, 10th and 90th percentiles over the runs; the final coverage, the share of runs reaching 95 %,
+the occupied-cell IoU of the final maps, outcome counts (explored, collided, lost, fallen) and
+speed. It prints the rows as JSON (`--json` also writes them) and a Markdown table, and draws
+`coverage_vs_time.png` in `--figures` (mean and 10-90 % band per variant; a panel per robot and world).
+
+    python experiments/exploration.py [--runs 100] [--robots go2 badger] [--worlds house warehouse]
+        [--variants baseline full] [--seconds T] [--seed 0] [--samples 256] [--horizon 30]
+        [--json rows.json] [--figures DIR]
+
+Without `--seconds` each world runs its target time: 600 s in the house, 900 s in the warehouse.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+TARGET_S = {"house": 600.0, "warehouse": 900.0}
+GOAL = 0.95  # coverage a run should reach
+
+
+def run_cell(args, robot: str, world: str, variant: str) -> dict:
+    from jaxquad.explore import ExploreConfig, explore
+    from jaxquad.explore.report import coverage_samples, summarize
+
+    seconds = args.seconds or TARGET_S[world]
+    cfg = ExploreConfig(
+        robot=robot,
+        world=world,
+        n_robots=args.runs,
+        seconds=seconds,
+        variant=variant,
+        seed=args.seed,
+        samples=args.samples,
+        horizon=args.horizon,
+        trace_robots=4,
+    )
+    t0 = time.perf_counter()
+    result = explore(cfg)
+    print(f"{robot} {world} {variant}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+    summary = summarize(result, args.every)
+    times, cov = coverage_samples(result, args.every)
+    final = np.asarray(summary["coverage"]["per_robot"])
+    return {
+        "robot": robot,
+        "world": world,
+        "variant": variant,
+        "runs": args.runs,
+        "seconds": seconds,
+        "t_s": times.tolist(),
+        "coverage_mean": cov.mean(1).tolist(),
+        "coverage_std": cov.std(1).tolist(),
+        "coverage_p10": np.percentile(cov, 10, axis=1).tolist(),
+        "coverage_p90": np.percentile(cov, 90, axis=1).tolist(),
+        "final_coverage": summary["coverage"],
+        "share_reaching_95": float(np.mean(final >= GOAL)),
+        "time_to_95_s_median": _time_to(times, cov, GOAL),
+        "map_iou": summary["map_iou"],
+        "outcomes": summary["outcomes"],
+        "distance_m": summary["distance_m"],
+        "slam_error_m": summary["slam_error_m"],
+        "compile_s": result.compile_s,
+        "robot_seconds_per_s": summary["timing"]["robot_seconds_per_s"],
+    }
+
+
+def _time_to(times: np.ndarray, cov: np.ndarray, level: float) -> float | None:
+    """Median over the runs of the first sampled time at which coverage reached `level` (None if half never did)."""
+    reached = cov >= level
+    first = np.where(reached.any(0), times[np.argmax(reached, axis=0)], np.inf)
+    med = float(np.median(first))
+    return med if np.isfinite(med) else None
+
+
+def plot(rows: list[dict], folder: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jaxquad.io.atomic import atomic_open
+
+    robots = sorted({r["robot"] for r in rows})
+    worlds = sorted({r["world"] for r in rows})
+    fig, axes = plt.subplots(len(robots), len(worlds), figsize=(5 * len(worlds), 3.6 * len(robots)), squeeze=False)
+    colors = {"baseline": "tab:orange", "full": "tab:blue"}
+    for i, robot in enumerate(robots):
+        for j, world in enumerate(worlds):
+            ax = axes[i, j]
+            for r in (r for r in rows if r["robot"] == robot and r["world"] == world):
+                t, c = np.asarray(r["t_s"]) / 60.0, colors.get(r["variant"], "k")
+                ax.plot(t, 100 * np.asarray(r["coverage_mean"]), color=c, lw=2, label=f"{r['variant']} (mean)")
+                ax.fill_between(t, 100 * np.asarray(r["coverage_p10"]), 100 * np.asarray(r["coverage_p90"]),
+                                color=c, alpha=0.2, lw=0, label=f"{r['variant']} (10-90 %)")  # fmt: skip
+                runs = r["runs"]
+            ax.axhline(100 * GOAL, color="k", ls=":", lw=0.8)
+            ax.set_title(f"{robot}, {world} ({runs} runs)", fontsize=9)
+            ax.set_xlabel("time (min)")
+            ax.set_ylabel("coverage (%)")
+            ax.set_ylim(0, 100)
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    path = folder / "coverage_vs_time.png"
+    with atomic_open(path, "wb") as f:
+        fig.savefig(f, format="png", dpi=110)
+    plt.close(fig)
+    return path
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--runs", type=int, default=4, help="robots per cell, each from its own start (default 4)")
+    p.add_argument("--robots", nargs="+", default=["go2", "badger"], choices=["go2", "badger"], help="(default both)")
+    p.add_argument("--worlds", nargs="+", default=["house", "warehouse"], choices=["house", "warehouse"],
+                   help="(default both)")  # fmt: skip
+    p.add_argument("--variants", nargs="+", default=["baseline", "full"], choices=["baseline", "full"],
+                   help="(default both)")  # fmt: skip
+    p.add_argument("--seconds", type=float, default=None, help="simulated time per run, s (default 600 / 900)")
+    p.add_argument("--seed", type=int, default=0, help="world and starts (default 0)")
+    p.add_argument("--samples", type=int, default=256, help="MPPI samples (default 256)")
+    p.add_argument("--horizon", type=int, default=30, help="MPPI horizon in ticks (default 30)")
+    p.add_argument("--every", type=float, default=5.0, help="coverage sampling period, s (default 5)")
+    p.add_argument("--json", default=None, help="write the rows as JSON here (default: stdout only)")
+    p.add_argument("--figures", default=None, help="folder for coverage_vs_time.png (default: none)")
+    args = p.parse_args()
+    if args.runs < 1 or (args.seconds is not None and not args.seconds > 0) or not args.every > 0:
+        p.error("--runs must be >= 1 and --seconds, --every positive")
+    from jaxquad.io.atomic import atomic_write_text, check_output_dir, check_output_file
+    from jaxquad.io.jsonfile import to_json
+
+    if args.json:
+        check_output_file(args.json, "--json")
+    if args.figures:
+        check_output_dir(args.figures, "--figures", kind=None)
+
+    import jax
+
+    print(f"`python {' '.join(sys.argv)}`  ", file=sys.stderr)
+    print(f"machine: {platform.node()}, {jax.devices()[0].device_kind}, jax {jax.__version__}", file=sys.stderr)
+    rows = [run_cell(args, r, w, v) for r in args.robots for w in args.worlds for v in args.variants]
+    print("| robot | world | variant | runs | s | coverage final mean (min) | runs >= 95 % | median time to 95 % s "
+          "| IoU | explored | collided | lost | fallen |", file=sys.stderr)  # fmt: skip
+    print("|---|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|", file=sys.stderr)
+    for r in rows:
+        c, o, t95 = r["final_coverage"], r["outcomes"], r["time_to_95_s_median"]
+        print(
+            f"| {r['robot']} | {r['world']} | {r['variant']} | {r['runs']} | {r['seconds']:.0f} | "
+            f"{100 * c['mean']:.1f} % ({100 * c['min']:.1f} %) | {100 * r['share_reaching_95']:.0f} % | "
+            f"{'-' if t95 is None else f'{t95:.0f}'} | {r['map_iou']['mean']:.2f} | {o['explored']} | "
+            f"{o['collided']} | {o['lost']} | {o['fallen']} |",
+            file=sys.stderr,
+        )
+    text = to_json(rows)
+    print(text)
+    if args.json:
+        atomic_write_text(args.json, text + "\n")
+    if args.figures:
+        folder = Path(args.figures)
+        folder.mkdir(parents=True, exist_ok=True)
+        print(f"figure: {plot(rows, folder)}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,114 @@
+"""`jaxquad explore`: a fleet of simulated robots, each exploring the same unknown world from its own start
+with online SLAM, frontier goals, the planner and MPPI (see jaxquad.explore.fleet); writes summary.json
+and pictures.
+
+Output folder:
+  summary.json   configuration, coverage (per robot, mean, over time), map scores against the true map,
+                 outcomes and flags, distance walked, SLAM error, timing (jaxquad.explore.report)
+  maps.png       the first robots' final SLAM maps with their true and SLAM paths
+  coverage.png   coverage against time, every robot and the mean
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from jaxquad.explore.report import SUMMARY_KIND
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from jaxquad.explore.fleet import VARIANTS
+
+    parser.add_argument("--robot", default="go2", choices=["go2", "badger"], help="robot model (default go2)")
+    parser.add_argument("--world", default="house", choices=["house", "warehouse"], help="world kind (default house)")
+    parser.add_argument("--robots", type=int, default=2, help="robots, each from its own start (default 2)")
+    parser.add_argument("--seconds", type=float, default=60.0, help="simulated time of the run, s (default 60)")
+    parser.add_argument(
+        "--variant",
+        default="full",
+        choices=sorted(VARIANTS),
+        help="full: leg-inertial odometry + IMU-stabilized scans + leg-odometry SLAM edges; baseline: visual "
+        "odometry + fixed-row scans + scan matching alone (default full)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="world, starts, robot variation, noise (default 0)")
+    parser.add_argument("--out", required=True, help="output folder (replaced whole when the run succeeds)")
+    parser.add_argument(
+        "--style",
+        default="aggressive",
+        choices=["calm", "aggressive"],
+        help="gait: aggressive swings the body and stops and goes (default aggressive)",
+    )
+    parser.add_argument("--samples", type=int, default=256, help="MPPI samples per control tick (default 256)")
+    parser.add_argument("--horizon", type=int, default=30, help="MPPI horizon in control ticks of 0.096 s (default 30)")
+    parser.add_argument(
+        "--slam-params", default=None, help="SLAM parameters (YAML, any subset of jaxquad/slam/slam.yaml; default none)"
+    )
+    parser.add_argument(
+        "--map-range", type=float, default=4.0, help="readings beyond this are no-returns for the map, m (default 4)"
+    )
+    parser.add_argument(
+        "--chunk-ticks",
+        type=int,
+        default=50,
+        help="control ticks per compiled chunk, a multiple of 10 (default 50 = 4.8 s)",
+    )
+    parser.add_argument(
+        "--every", type=float, default=5.0, help="coverage sampling period in summary.json, s (default 5)"
+    )
+    parser.add_argument("--plot-robots", type=int, default=4, help="robots drawn in maps.png (default 4)")
+
+
+def run(args: argparse.Namespace) -> int:
+    import math
+
+    from jaxquad.cli import progress_bar
+    from jaxquad.explore.fleet import REPLAN_TICKS, ExploreConfig, explore
+    from jaxquad.explore.report import plot_coverage, plot_maps, summarize
+    from jaxquad.io.atomic import atomic_dir, check_output_dir
+    from jaxquad.io.jsonfile import to_json, write_json
+
+    for option, value in (
+        ("--robots", args.robots),
+        ("--samples", args.samples),
+        ("--horizon", args.horizon),
+        ("--chunk-ticks", args.chunk_ticks),
+        ("--plot-robots", args.plot_robots),
+    ):
+        if value < 1:
+            raise ValueError(f"{option} must be >= 1, got {value}")
+    if args.chunk_ticks % REPLAN_TICKS:
+        raise ValueError(f"--chunk-ticks must be a multiple of {REPLAN_TICKS}, got {args.chunk_ticks}")
+    for option, value in (("--seconds", args.seconds), ("--every", args.every), ("--map-range", args.map_range)):
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{option} must be a positive number, got {value}")
+    check_output_dir(args.out, kind=SUMMARY_KIND)
+    cfg = ExploreConfig(
+        robot=args.robot,
+        world=args.world,
+        n_robots=args.robots,
+        seconds=args.seconds,
+        variant=args.variant,
+        seed=args.seed,
+        style=args.style,
+        samples=args.samples,
+        horizon=args.horizon,
+        chunk_ticks=args.chunk_ticks,
+        slam_params=args.slam_params,
+        map_range=args.map_range,
+        trace_robots=max(args.plot_robots, 1),
+    )
+    with progress_bar("explore", "sim s") as progress:
+        result = explore(cfg, progress=progress)
+    summary = summarize(result, args.every)
+    with atomic_dir(args.out) as tmp:
+        write_json(tmp / "summary.json", summary)
+        plot_maps(result, tmp / "maps.png", args.plot_robots)
+        plot_coverage(result, tmp / "coverage.png", args.every)
+    brief = {"robots": summary["robots"], "coverage_mean": summary["coverage"]["mean"]}
+    brief["coverage_per_robot"] = summary["coverage"]["per_robot"]
+    brief["map_iou_mean"] = summary["map_iou"]["mean"]
+    brief["outcomes"] = summary["outcomes"]
+    brief["real_time_factor"] = summary["timing"]["real_time_factor"]
+    brief["out"] = str(args.out)
+    print(to_json(brief))
+    return 0

@@ -1,0 +1,273 @@
+"""Exploration runs of a fleet: every robot explores the same unknown world with its own closed loop
+(`jaxquad.explore.loop`), chunk by chunk, for a fixed simulated time.
+
+`explore(ExploreConfig(...)) -> ExploreResult` builds the fleet (`jaxquad.sim.build_fleet` without its
+open-loop chunk), draws the robots' starts on the world's true free space (the truth sets the task and
+judges; the robots never read it), sizes the SLAM (its map on the true map's cells: the building's
+outline plus 0.5 m, an operator's figure; node slots for the whole run), then runs a compiled chunk of
+`chunk_ticks` control ticks (`vmap` over robots inside a `lax.scan` over ticks; a planning period every
+`REPLAN_TICKS` ticks, 0.96 s) until `seconds` have passed or every run has ended, and closes each
+robot's graph (`jaxquad.slam.finish`: a last optimization and the map at the optimized poses).
+
+Variants: `full` = leg-inertial odometry, IMU-stabilized scans and the SLAM's preintegrated
+leg-odometry edges; `baseline` = depth visual odometry (constant-velocity guess, RTAB-Map's defaults),
+fixed-row scans and no leg-odometry edges (Karto's scan matching alone).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxquad import slam
+from jaxquad.explore import loop as xl
+from jaxquad.kernels.occupancy import occupancy_values
+from jaxquad.nav import explore as nav_explore
+from jaxquad.nav import missions
+from jaxquad.nav import navigate as nav
+
+VARIANTS = {"full": ("leg", "stabilized", "preintegrated"), "baseline": ("visual", "baseline", "off")}
+REPLAN_TICKS = 10  # control ticks between two planning periods (0.96 s)
+SCAN_RANGE = 8.0  # m, the scans' range limit (the depth camera's); scan matching reads up to match_max_range
+
+
+@dataclasses.dataclass(frozen=True)
+class ExploreConfig:
+    robot: str = "go2"
+    world: str = "house"
+    n_robots: int = 2
+    seconds: float = 60.0  # simulated time of the run
+    variant: str = "full"  # or "baseline"
+    seed: int = 0  # world, starts, robot variation and noise
+    style: str = "aggressive"  # gait style (calm or aggressive)
+    samples: int = 256  # MPPI samples
+    horizon: int = 30  # MPPI steps (of one control tick each)
+    chunk_ticks: int = 50  # control ticks per compiled chunk (a multiple of REPLAN_TICKS)
+    slam_params: str | None = None  # SLAM parameter file (None: jaxquad/slam/slam.yaml)
+    clearance: float = 0.75  # m from every box for the starts (a robot turning in place sweeps ~0.4 m)
+    map_range: float = 4.0  # m: longer readings are no-returns for the map (depth noise, 1 % of z^2, is 16 cm at 4 m)
+    spin_rate: float = 0.6  # rad/s, turning in place without a frontier goal
+    finish_time: float = 12.0  # s without a frontier before exploration counts as finished (one turn and more)
+    contacts: str = "truth"  # the estimator's contact source
+    band_height: int = 1  # scan band rows
+    randomize: bool = True  # per-robot masses, friction, motors and noise levels
+    trace_robots: int = 8  # robots whose paths are kept in the result
+
+    def __post_init__(self):
+        if self.variant not in VARIANTS:
+            raise ValueError(f"variant must be one of {sorted(VARIANTS)}, got {self.variant!r}")
+        for name in ("n_robots", "samples", "horizon", "chunk_ticks", "band_height", "trace_robots"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("seconds", "spin_rate", "finish_time", "map_range"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if self.chunk_ticks % REPLAN_TICKS:
+            raise ValueError(f"chunk_ticks must be a multiple of {REPLAN_TICKS}, got {self.chunk_ticks}")
+        self.slam_values()  # reads and checks the SLAM file now, before any heavy work
+
+    def loop_config(self) -> xl.ExploreLoopConfig:
+        odometry, scans, lo = VARIANTS[self.variant]
+        return xl.ExploreLoopConfig(
+            odometry=odometry, scans=scans, lo_constraints=lo, band_height=self.band_height, contacts=self.contacts
+        )
+
+    def slam_values(self) -> dict:
+        """The SLAM parameters, with node slots for a node every `minimum_time_interval` of the run and the map's
+        range at most `map_range`."""
+        values = slam.load_params(self.slam_params)
+        nodes = math.ceil(self.seconds / max(values["minimum_time_interval"], 0.1)) + 2
+        nodes = max(values["node_capacity"] if self.slam_params else 0, nodes)
+        return values | {"node_capacity": nodes, "max_laser_range": min(values["max_laser_range"], self.map_range)}
+
+
+@dataclasses.dataclass
+class ExploreResult:
+    """A finished run, NumPy (N robots, T ticks)."""
+
+    config: ExploreConfig
+    world: object  # sim.worlds.World (ground truth)
+    truth: object  # OccupancyMap: the world's true map, on the cells of the robots' maps
+    reachable: np.ndarray  # (H, W) bool: true free cells connected to the starts (coverage's denominator)
+    maps: np.ndarray  # (N, H, W) int8: each robot's final SLAM map (-1 unknown, 0..100)
+    starts: np.ndarray  # (N, 3) x y yaw
+    outcome: np.ndarray  # (N,) loop.OUTCOMES codes
+    end_t: np.ndarray  # (N,) s when the run ended (NaN: running at the end)
+    distance: np.ndarray  # (N,) m walked
+    nodes: np.ndarray  # (N,) SLAM nodes
+    loops: np.ndarray  # (N,) loop closures accepted
+    t: np.ndarray  # (T,) s
+    coverage: np.ndarray  # (T, N)
+    error: np.ndarray  # (T, N) m, SLAM position error
+    active: np.ndarray  # (T, N)
+    true_pose: np.ndarray  # (T, n_trace, 3)
+    pose: np.ndarray  # (T, n_trace, 3) SLAM pose
+    compile_s: float
+    run_s: float  # wall time of the chunks and of copying their outputs to the host, compilation excluded
+    sim_s: float
+
+
+def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_dt: float) -> xl.ExploreLoopParams:
+    from jaxquad.nav.fleet import body_params
+
+    rows, cols = truth.grid.shape
+    # Path capacity: a winding route across the map (1.5 x its sides), one point every 4 cells.
+    n_path = max(32, math.ceil(1.5 * (rows + cols) / 4))
+    nav_params = nav.NavParams.default(
+        n_samples=cfg.samples, horizon=cfg.horizon, n_path_points=n_path, replan_ticks=REPLAN_TICKS
+    )
+    nav_params = eqx.tree_at(lambda p: p.controller.dt, nav_params, jnp.asarray(tick_dt, jnp.float32))
+    values = cfg.slam_values()
+    T_bc = np.asarray(fleet.T_base_camera)
+    grid = slam.grid_spec_like(truth, values["max_laser_range"])
+    spec, slam_params = slam.slam_config(values, grid, loop.lo_constraints, (float(T_bc[0, 3]), float(T_bc[1, 3]), 0.0))
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    return xl.ExploreLoopParams(
+        nav=nav_params,
+        # A known cell more likely free than not is free for the frontiers (the map format's 0.196 needs four
+        # free readings of a cell in this SLAM's log-odds, so the edge of what was seen would never be a frontier).
+        explore=nav_explore.ExploreParams.default(free_thresh=50.0),
+        slam_spec=spec,
+        slam=slam_params,
+        body=body_params(fleet, loop.odometry, 0.2, SCAN_RANGE),
+        yaw_rate_std=f32(values["leg_yaw_rate_std"]),
+        spin_rate=f32(cfg.spin_rate),
+        finish_time=f32(cfg.finish_time),
+        lost_error=f32(0.5),
+        lost_time=f32(2.0),
+    )
+
+
+# (robot, fleet structure, loop configuration) -> jitted (init, chunk, finish).
+_FUNCTIONS: dict = {}
+
+
+def _compiled_functions(fleet, loop: xl.ExploreLoopConfig):
+    c = dataclasses.replace(fleet.config, seed=0, n_robots=1, n_worlds=1, style="calm", randomize=True)
+    key = (fleet.robot.path, c, loop)
+    if key not in _FUNCTIONS:
+        fns = xl.make_explore_loop(fleet, loop)
+
+        def axes(inputs):  # per-robot model fields and setup; the judge's mask and the flag shared
+            fields = lambda x: (x.model, x.setup, x.reachable, x.replan)  # noqa: E731
+            return eqx.tree_at(fields, inputs, (fleet.model_in_axes, 0, None, None))
+
+        def init(params, inputs, qpos0, keys):
+            return jax.vmap(fns.init, in_axes=(None, axes(inputs), 0, 0))(params, inputs, qpos0, keys)
+
+        def chunk(params, states, inputs, n_ticks: int, replan_ticks: int):
+            def body(s, i):
+                at_i = eqx.tree_at(lambda x: x.replan, inputs, i % replan_ticks == 0)
+                return jax.vmap(fns.tick, in_axes=(None, 0, axes(at_i)))(params, s, at_i)
+
+            return jax.lax.scan(body, states, jnp.arange(n_ticks))
+
+        def finish(params, states):
+            def one(s):
+                final = slam.finish(params.slam_spec, params.slam, s.slam)
+                return occupancy_values(final.grid), final.n_nodes, final.loops
+
+            return jax.vmap(one)(states)
+
+        _FUNCTIONS[key] = (
+            jax.jit(init),
+            jax.jit(chunk, static_argnames=("n_ticks", "replan_ticks"), donate_argnums=(1,)),
+            jax.jit(finish),
+        )
+    return _FUNCTIONS[key]
+
+
+def explore(cfg: ExploreConfig, starts: np.ndarray | None = None, progress=None) -> ExploreResult:
+    """Run the fleet; `starts` (N, 3) replaces the drawn starts. `progress(done_s, total_s)` is called with
+    the simulated seconds after each chunk (first with 0 once the run is set up)."""
+    from jaxquad.sim import FleetConfig, build_fleet
+    from jaxquad.sim.worlds import occupancy_map
+
+    loop = cfg.loop_config()
+    fleet = build_fleet(
+        FleetConfig(
+            robot=cfg.robot,
+            world=cfg.world,
+            n_robots=cfg.n_robots,
+            style=cfg.style,
+            seed=cfg.seed,
+            randomize=cfg.randomize,
+        ),
+        compile_chunk=False,
+    )
+    world = fleet.worlds[0]
+    truth = occupancy_map(world)
+    reachable = missions.reachable_cells(np.where(truth.grid == 0, 1.0, np.inf))
+    tick_dt = loop.frames_per_tick * fleet.frame_dt
+    params = _params(cfg, loop, fleet, truth, tick_dt)
+    if starts is None:
+        rng = np.random.default_rng([cfg.seed, 13])
+        starts = missions.draw_poses(rng, truth, reachable, world, cfg.n_robots, cfg.clearance)
+    starts = np.asarray(starts, np.float64).reshape(cfg.n_robots, 3)
+    inputs = xl.ExploreInputs(
+        model=fleet.model, setup=fleet.setup, reachable=jnp.asarray(reachable), replan=jnp.asarray(True)
+    )
+    qpos0 = np.tile(fleet.robot.qpos_home, (cfg.n_robots, 1))
+    a = fleet.robot.base_qpos_adr
+    qpos0[:, a : a + 2] = starts[:, :2]
+    qpos0[:, a + 3 : a + 7] = np.stack(
+        [np.cos(starts[:, 2] / 2), 0 * starts[:, 2], 0 * starts[:, 2], np.sin(starts[:, 2] / 2)], 1
+    )
+    init, chunk, finish = _compiled_functions(fleet, loop)
+    keys = jax.random.split(jax.random.key(cfg.seed), cfg.n_robots)
+    t0 = time.perf_counter()
+    states = init(params, inputs, jnp.asarray(qpos0, jnp.float32), keys)
+    compiled = chunk.lower(params, states, inputs, n_ticks=cfg.chunk_ticks, replan_ticks=REPLAN_TICKS).compile()
+    compile_s = time.perf_counter() - t0
+    n_chunks = max(1, math.ceil(cfg.seconds / (cfg.chunk_ticks * tick_dt) - 1e-9))
+    outs, run_s = [], 0.0
+    if progress is not None:
+        progress(0, cfg.seconds)
+    for k in range(n_chunks):
+        t1 = time.perf_counter()
+        states, out = compiled(params, states, inputs)
+        outs.append(_keep(out, cfg.trace_robots))
+        ended = np.asarray(states.outcome) != xl.RUNNING
+        run_s += time.perf_counter() - t1  # the outputs' copy to the host included
+        if progress is not None:
+            progress(round(min(cfg.seconds, (k + 1) * cfg.chunk_ticks * tick_dt), 1), cfg.seconds)
+        if ended.all():
+            break
+    maps, nodes, loops = jax.device_get(finish(params, states))
+    trace = jax.tree.map(lambda *x: np.concatenate(x), *outs)
+    return ExploreResult(
+        config=cfg,
+        world=world,
+        truth=truth,
+        reachable=reachable,
+        maps=np.asarray(maps),
+        starts=starts,
+        outcome=np.asarray(states.outcome),
+        end_t=np.asarray(states.end_t),
+        distance=np.asarray(states.distance),
+        nodes=np.asarray(nodes),
+        loops=np.asarray(loops),
+        t=trace.t[:, 0],
+        coverage=trace.coverage,
+        error=trace.error,
+        active=trace.active,
+        true_pose=trace.true_pose,
+        pose=trace.pose,
+        compile_s=compile_s,
+        run_s=run_s,
+        sim_s=float(trace.t[-1, 0]),
+    )
+
+
+def _keep(out: xl.ExploreOutput, n_trace: int) -> xl.ExploreOutput:
+    """The chunk's outputs on the host; poses and goals of the first `n_trace` robots only."""
+    out = dataclasses.replace(  # sliced on the device: only what is kept is copied
+        out, true_pose=out.true_pose[:, :n_trace], pose=out.pose[:, :n_trace], goal=out.goal[:, :n_trace]
+    )
+    return jax.device_get(out)

@@ -1,0 +1,260 @@
+"""The closed exploration loop of one simulated robot: simulator -> estimator -> online SLAM -> frontier goal
+-> global plan -> MPPI, with no map given.
+
+The robot side (physics, the estimator's leg-inertial odometry, depth visual odometry, scans, the
+collision judge) is `jaxquad.nav.body`, as in the navigation loop. Per control tick (`frames_per_tick`
+camera frames, 0.096 s) the last frame's scan, with the odometry and the leg odometry's planar twist,
+goes through one step of the online SLAM (`jaxquad.slam`), whose pose drives the controller. Once per
+planning period (a tick whose shared `replan` flag is set; under `vmap` a `lax.cond` skips it on the
+other ticks) the SLAM map becomes a costmap, `jaxquad.nav.explore.update` picks the nearest reachable
+frontier (progress check and blacklist included) and the plan to it is read off the robot's own
+cost-to-go (`nav.plan_from_start`). Between plans MPPI follows it on that costmap. Without a frontier
+goal the robot turns in place (`spin_rate`) to look around: at the start, before its map has free
+cells, and when exploration seems done; exploration is finished when no frontier has been found for
+`finish_time` seconds of turning.
+
+Nothing from ground truth decides anything: the truth only judges. A run ends `collided` (the base
+footprint overlaps a world box), `lost` (the SLAM pose more than `lost_error` from the truth for
+`lost_time`), `fallen`, or `explored` (finished as above); the robot then stands still and its map
+stays as it was. `coverage` (per tick) is the robot's known-free cells within the true reachable free
+cells over those cells (`ExploreInputs.reachable`, on the SLAM map's cells).
+
+`state = init(params, inputs, qpos0, key)`, `state, out = tick(params, state, inputs)`: one robot, pure.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
+
+from jaxquad import slam
+from jaxquad.estimate.laser import planar_twist
+from jaxquad.kernels.costmap import CostGrid
+from jaxquad.kernels.occupancy import occupancy_values
+from jaxquad.nav import explore
+from jaxquad.nav import navigate as nav
+from jaxquad.nav.body import Body, BodyParams, make_body, pose_error
+
+OUTCOMES = ("running", "explored", "collided", "lost", "fallen")
+RUNNING, EXPLORED, COLLIDED, LOST, FALLEN = range(len(OUTCOMES))
+FREE_BELOW = 20  # map value (0..100) below which a known cell is free: the map format's free_thresh 0.196
+
+
+@dataclasses.dataclass(frozen=True)
+class ExploreLoopConfig:
+    """Static choices (they select code)."""
+
+    odometry: str = "leg"  # "leg": leg-inertial odometry; "visual": depth VO with a constant-velocity guess
+    scans: str = "stabilized"  # "stabilized": IMU-levelled band; "baseline": fixed image rows
+    lo_constraints: str = "preintegrated"  # the SLAM's leg-odometry edges (jaxquad.slam.LO_CONSTRAINTS)
+    frames_per_tick: int = 3
+    band_height: int = 1  # scan band rows
+    contacts: str = "truth"  # the estimator's contact source
+
+    def __post_init__(self):
+        if self.lo_constraints not in slam.LO_CONSTRAINTS:
+            raise ValueError(f"lo_constraints must be one of {slam.LO_CONSTRAINTS}, got {self.lo_constraints!r}")
+        for name in ("frames_per_tick", "band_height"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+
+class ExploreLoopParams(eqx.Module):
+    """Tunable numbers (traced leaves; the sub-parameters carry their own static sizes)."""
+
+    nav: nav.NavParams
+    explore: explore.ExploreParams
+    slam_spec: slam.SlamSpec  # static: capacities, search sizes, the map's cells
+    slam: slam.SlamParams
+    body: BodyParams
+    yaw_rate_std: Float[Array, ""]  # rad/s, std of the leg-odometry yaw rate (the SLAM's leg edges)
+    spin_rate: Float[Array, ""]  # rad/s, turning in place without a frontier goal
+    finish_time: Float[Array, ""]  # s without a frontier (turning) before exploration counts as finished
+    lost_error: Float[Array, ""]  # m
+    lost_time: Float[Array, ""]  # s
+
+
+class ExploreInputs(eqx.Module):
+    model: object  # mjx.Model (batched as `Fleet.model_in_axes`)
+    setup: object  # sim.RobotSetup
+    reachable: Bool[Array, "H W"]  # truth, to judge coverage only: reachable free cells on the SLAM map's cells
+    replan: Bool[Array, ""]  # plan on this tick (one flag for the fleet)
+
+
+class ExploreLoopState(eqx.Module):
+    body: Body
+    slam: slam.SlamState
+    pose: Float[Array, " 3"]  # the SLAM's pose of the base, map (= world) frame
+    grid: CostGrid  # costmap of the SLAM map at the last planning period
+    explore: explore.ExploreState
+    nav: nav.NavState
+    cmd: Float[Array, " 3"]  # body command to the gait controller
+    no_goal_for: Float[Array, ""]  # s since a frontier goal was last found
+    lost_for: Float[Array, ""]  # s the SLAM pose error has stayed above lost_error
+    distance: Float[Array, ""]  # m walked (true path, in the plane)
+    outcome: Int[Array, ""]  # OUTCOMES code
+    end_t: Float[Array, ""]  # s when the run ended (NaN while running)
+    key: PRNGKeyArray
+
+
+class ExploreOutput(eqx.Module):
+    """Per tick (leading axes B: a fleet adds time and robots)."""
+
+    t: Float[Array, "*B"]  # s
+    true_pose: Float[Array, "*B 3"]
+    pose: Float[Array, "*B 3"]  # SLAM pose
+    error: Float[Array, "*B"]  # m, SLAM position error
+    coverage: Float[Array, "*B"]  # known-free over true reachable free cells
+    goal: Float[Array, "*B 3"]  # the frontier goal
+    has_goal: Bool[Array, "*B"]
+    active: Bool[Array, "*B"]  # the run had not ended at the start of the tick
+
+
+class ExploreFunctions(NamedTuple):
+    init: Callable  # (params, inputs, qpos0, key) -> ExploreLoopState
+    tick: Callable  # (params, state, inputs) -> (state, ExploreOutput)
+
+
+def coverage(values: Int[Array, "H W"], reachable: Bool[Array, "H W"]) -> Float[Array, ""]:
+    """Known-free cells (0 <= value < FREE_BELOW) among the `reachable` cells, over their count."""
+    free = (values >= 0) & (values < FREE_BELOW) & reachable
+    return jnp.sum(free) / jnp.maximum(jnp.sum(reachable), 1)
+
+
+def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
+    """The loop's pure functions for `fleet` (a `jaxquad.sim.Fleet` with depth; static parts closed over)."""
+    body = make_body(fleet, config.odometry, config.scans, config.band_height, config.contacts)
+    tick_dt = config.frames_per_tick * float(fleet.frame_dt)
+
+    def slam_step(params: ExploreLoopParams, s: slam.SlamState, b: Body, depth, odom, active=True):
+        """One SLAM step on the frame's scan; an inactive robot's scan has no stamp and adds nothing."""
+        scan = body.scan(params.body, b.est, depth)
+        q = b.est.pose.q_world_base
+        twist, cov = planar_twist(q, b.v_base, b.omega_base, b.cov_v_base, params.yaw_rate_std)
+        inputs = slam.SlamInputs(
+            t=jnp.where(active, b.sim.t, jnp.nan),
+            odom=odom,
+            ranges=jnp.where(b.valid, scan.ranges, jnp.nan),
+            valid=b.valid & ~jnp.isnan(scan.ranges),
+            lo_pose=body.leg_pose(b.est),
+            lo_twist=twist,
+            lo_twist_cov=cov,
+            lo_valid=b.valid & active,
+        )
+        return slam.step(params.slam_spec, params.slam, s, inputs)
+
+    def plan(params: ExploreLoopParams, s: ExploreLoopState, period: float):
+        """The planning period: the SLAM map's costmap, the next frontier goal and the plan to it."""
+        g = params.slam_spec.grid
+        values = occupancy_values(s.slam.grid)
+        grid = nav.cost_grid(params.nav, values, jnp.array([g.origin_x, g.origin_y], jnp.float32), g.resolution)
+        weight, value = explore.robot_value(params.explore, grid, s.pose)
+        ex, choice = explore.update(params.explore, s.explore, values, grid, s.pose, period, value)
+        p = nav.plan_from_start(params.nav, grid, weight, value, choice.goal_rc, s.pose)
+        p = eqx.tree_at(lambda x: x.ok, p, p.ok & choice.found)
+        # A new goal (one that moved): MPPI restarts from a zero sequence on the new plan.
+        moved = jnp.linalg.norm(ex.goal[:2] - s.explore.goal[:2]) > params.explore.blacklist_radius
+        fresh = nav.init(params.nav, s.pose).controller
+        ctrl = jax.tree.map(lambda a, b: jnp.where(moved, a, b), fresh, s.nav.controller)
+        return grid, ex, nav.NavState(controller=ctrl, plan=p)
+
+    def init(params: ExploreLoopParams, inputs: ExploreInputs, qpos0, key) -> ExploreLoopState:
+        k_sim, key = jax.random.split(key)
+        b, depth = body.start(params.body, inputs.model, inputs.setup, qpos0, k_sim)
+        scan = body.scan(params.body, b.est, depth)
+        slam_state = slam.init(params.slam_spec, params.slam, scan.bearings)
+        # The odometry starts at the true start pose (the operator's), so the map frame is the world's.
+        slam_state, out = slam_step(params, slam_state, b, depth, body.leg_pose(b.est))
+        g = params.slam_spec.grid
+        shape = (g.rows, g.cols)
+        unknown = jnp.full(shape, 255.0, jnp.float32)  # no map yet: every cell unknown
+        origin = jnp.array([g.origin_x, g.origin_y], jnp.float32)
+        return ExploreLoopState(
+            body=b,
+            slam=slam_state,
+            pose=out.pose,
+            grid=CostGrid(unknown, origin, jnp.asarray(g.resolution, jnp.float32)),
+            explore=explore.init(shape),
+            nav=nav.init(params.nav, out.pose),
+            cmd=jnp.zeros(3),
+            no_goal_for=jnp.zeros(()),
+            lost_for=jnp.zeros(()),
+            distance=jnp.zeros(()),
+            outcome=jnp.asarray(RUNNING, jnp.int32),
+            end_t=jnp.asarray(jnp.nan, jnp.float32),
+            key=key,
+        )
+
+    def tick(params: ExploreLoopParams, s: ExploreLoopState, inputs: ExploreInputs):
+        active = s.outcome == RUNNING
+        before = body.true_pose(s.body.sim)
+
+        def frame(b, _):
+            b, depth, odom = body.frame(params.body, inputs.model, inputs.setup, b, s.cmd)
+            b = dataclasses.replace(b, sim=body.judge_collision(params.body, inputs.setup, b.sim))
+            return b, (depth, odom)
+
+        b, (depth, odom) = jax.lax.scan(frame, s.body, None, length=config.frames_per_tick)
+        # A finished run keeps its map: the SLAM sees nothing more.
+        slam_state, out = slam_step(params, s.slam, b, depth[-1], odom[-1], active)
+        pose = jnp.where(active, out.pose, s.pose)
+        s = dataclasses.replace(s, body=b, slam=slam_state, pose=pose)
+
+        period = params.nav.replan_ticks * tick_dt
+        grid, ex, nav_state = jax.lax.cond(
+            inputs.replan, lambda: plan(params, s, period), lambda: (s.grid, s.explore, s.nav)
+        )
+        key, k_nav = jax.random.split(s.key)
+        nav_state, ctrl = nav.step(
+            params.nav, nav_state, nav.NavInputs(pose=s.pose, goal=ex.goal, grid=grid, key=k_nav)
+        )
+        spin = jnp.array([0.0, 0.0, 1.0]) * params.spin_rate
+        cmd = jnp.where(ex.has_goal, ctrl.cmd, spin)
+        no_goal_for = jnp.where(ex.has_goal, 0.0, s.no_goal_for + tick_dt)
+
+        t, truth = b.sim.t, body.true_pose(b.sim)
+        error, _ = pose_error(s.pose, truth)
+        lost_for = jnp.where(error > params.lost_error, s.lost_for + tick_dt, 0.0)
+        ended = jnp.select(
+            [
+                b.sim.collided,
+                b.sim.fallen,
+                lost_for >= params.lost_time - 0.5 * tick_dt,
+                ex.done & (no_goal_for >= params.finish_time),
+            ],
+            [COLLIDED, FALLEN, LOST, EXPLORED],
+            RUNNING,
+        )
+        outcome = jnp.where(active, ended, s.outcome)
+        still = outcome == RUNNING
+        s = dataclasses.replace(
+            s,
+            grid=grid,
+            explore=ex,
+            nav=nav_state,
+            cmd=jnp.where(still, cmd, 0.0),
+            no_goal_for=no_goal_for,
+            lost_for=lost_for,
+            distance=s.distance + jnp.where(active, jnp.hypot(*(truth[:2] - before[:2])), 0.0),
+            outcome=outcome,
+            end_t=jnp.where(active & ~still, t, s.end_t),
+            key=key,
+        )
+        return s, ExploreOutput(
+            t=t,
+            true_pose=truth,
+            pose=s.pose,
+            error=error,
+            coverage=coverage(occupancy_values(slam_state.grid), inputs.reachable),
+            goal=ex.goal,
+            has_goal=ex.has_goal,
+            active=active,
+        )
+
+    return ExploreFunctions(init=init, tick=tick)

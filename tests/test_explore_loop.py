@@ -1,0 +1,123 @@
+"""Exploration in the closed loop: its pieces against independent references (the plan read off the robot's
+own cost-to-go against scipy's Dijkstra, map values against the log-odds formula, coverage against a count,
+coverage sampling against a loop), and a small CPU exploration in the MJX simulator whose coverage grows."""
+
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.sparse import csgraph
+from test_nav_closed_loop import _room
+from test_planner import _reference_graph
+
+from jaxquad import nav
+from jaxquad.explore.loop import OUTCOMES, coverage
+from jaxquad.explore.report import coverage_samples
+from jaxquad.io.jsonfile import to_json
+from jaxquad.kernels.occupancy import OccupancyGrid, occupancy_values
+
+PARAMS = nav.NavParams.default(n_samples=32, horizon=8, n_path_points=200, path_stride=1)
+EXPLORE = nav.ExploreParams.default()
+_robot_value = jax.jit(nav.explore.robot_value)
+_plan_from_start = jax.jit(nav.navigate.plan_from_start)
+
+
+@pytest.fixture(scope="module")
+def room():
+    occ = _room()
+    grid = nav.cost_grid(PARAMS, jnp.asarray(occ.grid), jnp.asarray(occ.origin[:2]), occ.resolution)
+    pose = jnp.array([0.4, 0.4, 0.3])
+    weight, value = _robot_value(EXPLORE, grid, pose)
+    return grid, pose, np.asarray(weight), value
+
+
+def test_plan_from_start_runs_the_shortest_path_from_robot_to_goal(room):
+    grid, pose, weight, value = room
+    start = np.asarray(grid.cell_of(pose[:2]))
+    graph = _reference_graph(weight)
+    dist = csgraph.dijkstra(graph, indices=start[0] * weight.shape[1] + start[1]).reshape(weight.shape)
+    finite = np.isfinite(weight)
+    np.testing.assert_allclose(np.asarray(value)[finite], dist[finite], rtol=1e-5)
+    for goal in ([50, 70], [20, 60], [45, 10]):  # behind the wall, beside the block, above it
+        plan = _plan_from_start(PARAMS, grid, jnp.asarray(weight), value, jnp.asarray(goal, jnp.int32), pose)
+        assert bool(plan.ok)
+        path = np.asarray(plan.path)[np.asarray(plan.valid)]
+        cells = np.floor((path - np.asarray(grid.origin)) / float(grid.resolution)).astype(int)[:, ::-1]
+        np.testing.assert_array_equal(cells[0], start)  # from the robot ...
+        np.testing.assert_array_equal(cells[-1], goal)  # ... to the goal
+        steps = np.diff(cells, axis=0)
+        assert np.all(np.abs(steps).max(axis=1) == 1)  # 8-connected, one cell per point
+        cost = sum(np.hypot(*d) * 0.5 * (weight[tuple(a)] + weight[tuple(a + d)]) for a, d in zip(cells[:-1], steps))
+        np.testing.assert_allclose(cost, dist[tuple(goal)], rtol=1e-4)
+
+
+def test_plan_from_start_to_a_blocked_goal_is_not_ok(room):
+    grid, pose, weight, value = room
+    plan = _plan_from_start(PARAMS, grid, jnp.asarray(weight), value, jnp.asarray([30, 15], jnp.int32), pose)
+    assert not bool(plan.ok) and not np.asarray(plan.valid).any()  # inside the filled block
+
+
+def test_occupancy_values_follow_the_log_odds_formula():
+    rng = np.random.default_rng(0)
+    log_odds = rng.uniform(-3.0, 4.0, (40, 50)).astype(np.float32)
+    observed = rng.random((40, 50)) < 0.7
+    got = np.asarray(jax.jit(occupancy_values)(OccupancyGrid(jnp.asarray(log_odds), jnp.asarray(observed))))
+    p = 100.0 / (1.0 + np.exp(-log_odds.astype(np.float64)))
+    expected = np.where(observed, np.rint(p), -1)
+    clear = np.abs(p - np.floor(p) - 0.5) > 1e-3  # float32 may round the other way at a tie
+    assert got.dtype == np.int8 and np.array_equal(got[clear], expected[clear])
+    assert np.abs(got.astype(int) - expected).max() <= 1
+
+
+def test_coverage_counts_known_free_reachable_cells():
+    rng = np.random.default_rng(1)
+    values = rng.integers(-1, 101, (30, 40)).astype(np.int8)
+    reachable = rng.random((30, 40)) < 0.6
+    expected = sum(1 for v, r in zip(values.ravel(), reachable.ravel()) if r and 0 <= v < 20) / reachable.sum()
+    got = float(jax.jit(coverage)(jnp.asarray(values), jnp.asarray(reachable)))
+    assert got == pytest.approx(expected, rel=1e-6)
+
+
+def test_coverage_samples_hold_the_last_tick_at_or_before_each_time():
+    t = np.arange(1, 101) * 0.096  # ticks end 0.096 s apart; the run stopped at 9.6 s of 12 s
+    cov = np.stack([np.sqrt(t / 10), t / 10], 1)
+    result = SimpleNamespace(config=SimpleNamespace(seconds=12.0), t=t, coverage=cov)
+    times, got = coverage_samples(result, every=2.5)
+    np.testing.assert_allclose(times, [0.0, 2.5, 5.0, 7.5, 10.0])
+    for s, ts in enumerate(times):
+        k = max([i for i in range(len(t)) if t[i] <= ts + 1e-9], default=0)
+        np.testing.assert_array_equal(got[s], cov[k])
+
+
+@pytest.fixture(scope="module")
+def run():
+    """One Go2 explores the house (seed 0) for 48 s from its drawn start."""
+    from jaxquad.explore import ExploreConfig, explore
+
+    cfg = ExploreConfig(n_robots=1, seconds=48.0, samples=64, horizon=20, chunk_ticks=50, trace_robots=1)
+    return explore(cfg)
+
+
+@pytest.mark.slow
+def test_small_exploration_grows_its_map(run, tmp_path):
+    from jaxquad.explore.report import plot_coverage, plot_maps, summarize
+
+    assert OUTCOMES[run.outcome[0]] == "running" and np.isnan(run.end_t[0])  # no collision, fall or loss
+    times, cov = coverage_samples(run, 6.0)
+    assert cov[0, 0] < 0.1 and cov[-1, 0] > 0.35  # the map grew from nothing to over a third of the house
+    assert np.all(np.diff(cov[1:, 0]) > -0.02)  # and, after the first scans settled, kept growing
+    assert run.distance[0] > 2.0
+    err = run.error[run.active[:, 0], 0]
+    assert np.median(err) < 0.15
+    summary = summarize(run, every=6.0)
+    assert json.loads(to_json(summary))["coverage"]["per_robot"][0] > 0.35  # the final map (after `finish`)
+    assert summary["per_robot"][0]["map_scores"]["precision"] > 0.3
+    assert summary["coverage_over_time"]["t_s"] == times.tolist()
+    plot_maps(run, tmp_path / "maps.png")
+    plot_coverage(run, tmp_path / "coverage.png", 6.0)
+    assert (tmp_path / "maps.png").stat().st_size > 10_000 and (tmp_path / "coverage.png").stat().st_size > 5_000
