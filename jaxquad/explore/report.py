@@ -16,6 +16,7 @@ import dataclasses
 import numpy as np
 
 from jaxquad.explore.loop import OUTCOMES, coverage
+from jaxquad.nav.report import timing
 
 SUMMARY_KIND = "jaxquad explore"
 
@@ -104,13 +105,7 @@ def summarize(result, every: float = 5.0) -> dict:
         "outcomes": {name: int((result.outcome == code).sum()) for code, name in enumerate(OUTCOMES)},
         "distance_m": _stats(result.distance),
         "slam_error_m": _stats(result.error[result.active]),
-        "timing": {
-            "compile_s": result.compile_s,
-            "run_s": result.run_s,
-            "simulated_s": result.sim_s,
-            "real_time_factor": result.sim_s / result.run_s if result.run_s > 0 else None,
-            "robot_seconds_per_s": n * result.sim_s / result.run_s if result.run_s > 0 else None,
-        },
+        "timing": timing(result, n),
         "per_robot": per_robot,
     }
 

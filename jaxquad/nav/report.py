@@ -20,6 +20,18 @@ from jaxquad.nav.fleet import SUCCESS_XY, SUCCESS_YAW
 SUMMARY_KIND = "jaxquad navigate"
 
 
+def timing(result, n: int) -> dict:
+    """Compile and run wall times of a fleet run of `n` robots, and its speed against simulated time."""
+    speed = result.sim_s / result.run_s if result.run_s > 0 else None
+    return {
+        "compile_s": result.compile_s,
+        "run_s": result.run_s,
+        "simulated_s": result.sim_s,
+        "real_time_factor": speed,
+        "robot_seconds_per_s": None if speed is None else n * speed,
+    }
+
+
 def _stats(x: np.ndarray) -> dict:
     x = np.asarray(x, np.float64)
     if x.size == 0:
@@ -71,13 +83,7 @@ def summarize(result) -> dict:
         "localization_error_m": _stats(err.ravel()),
         "localization_error_median_per_robot_m": _stats(np.array([np.median(e) for e in per_robot_err if e.size])),
         "recoveries": int(rising.sum()),
-        "timing": {
-            "compile_s": result.compile_s,
-            "run_s": result.run_s,
-            "simulated_s": result.sim_s,
-            "real_time_factor": result.sim_s / result.run_s if result.run_s > 0 else None,
-            "robot_seconds_per_s": n * result.sim_s / result.run_s if result.run_s > 0 else None,
-        },
+        "timing": timing(result, n),
         "per_goal": per_goal,
     }
 
