@@ -11,7 +11,12 @@ odometry + stabilized scans).
 
     python experiments/navigation.py [--robot go2 --robot badger] [--world house --world warehouse]
         [--robots 2] [--goals 2] [--worlds 1] [--seed 0] [--style aggressive] [--samples 256]
-        [--horizon 30] [--particles 500] [--max-seconds S] [--ablation] [--out DIR] [--json rows.json]
+        [--horizon 30] [--particles 500] [--max-seconds S] [--ablation | --cell full ...] [--out DIR]
+        [--json rows.json]
+    python experiments/navigation.py --merge go2_house.json go2_warehouse.json ... [--json table.json]
+
+`--cell` picks rows (repeatable); `--merge` prints the tables of cells run as separate jobs (one cell per
+job where a job's time is limited) from their `--json` files.
 """
 
 from __future__ import annotations
@@ -32,6 +37,8 @@ CELLS = {  # row label -> (variant, odometry override, scans override)
 
 
 def run_cell(args, robot: str, world: str, label: str) -> dict:
+    import jax
+
     from jaxquad.nav.closed_loop import OUTCOMES, REACHED
     from jaxquad.nav.fleet import NavConfig, navigate
     from jaxquad.nav.report import plot_paths, summarize
@@ -56,7 +63,11 @@ def run_cell(args, robot: str, world: str, label: str) -> dict:
             trace_robots=8,
         )
         t0 = time.perf_counter()
-        result = navigate(cfg, progress=None)
+
+        def progress(done, total, t0=t0, tag=f"{robot} {world} {label} seed {seed}"):
+            print(f"{tag}: {done}/{total} goals ended, {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+
+        result = navigate(cfg, progress=progress)
         print(f"{robot} {world} {label} seed {seed}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
         outcome.append(result.outcome)
         elapsed.append(result.elapsed[result.outcome == REACHED])
@@ -90,10 +101,71 @@ def run_cell(args, robot: str, world: str, label: str) -> dict:
         "compile_s": compile_s,
         "run_s": run_s,
         "robot_seconds_per_s": robot_s / run_s if run_s > 0 else None,
+        "device": jax.devices()[0].device_kind,
+        "settings": {
+            k: getattr(args, k)
+            for k in ("robots", "goals", "worlds", "seed", "style", "samples", "horizon", "particles", "max_seconds")
+        },
     }
 
 
-def main() -> int:
+def markdown(rows: list[dict]) -> str:
+    """Table II (success rate per method and robot/world) and the per-cell details, as Markdown."""
+    labels = [x for x in CELLS if any(r["cell"] == x for r in rows)]
+    cols = list(dict.fromkeys((r["world"], r["robot"]) for r in rows))
+    lines = ["| method | " + " | ".join(f"{w} / {r}" for w, r in cols) + " |", "|---|" + "---:|" * len(cols)]
+    for label in labels:
+        cells = {(x["world"], x["robot"]): x for x in rows if x["cell"] == label}
+        lines.append(
+            f"| {label} | "
+            + " | ".join(
+                f"{100 * cells[c]['success_rate']:.1f}% of {cells[c]['goals']}" if c in cells else "-" for c in cols
+            )
+            + " |"
+        )
+    lines += [
+        "",
+        "| robot | world | method | runs | reached | missed | collided | lost | timeout | fallen | skipped "
+        "| pending | time to goal s (median) | loc. error m (median / p99) | compile s | robot-s per s |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|",
+    ]
+    fmt = lambda v, d=3: "-" if v is None else f"{v:.{d}f}"  # noqa: E731
+    for x in rows:
+        o = x["outcomes"]
+        lines.append(
+            f"| {x['robot']} | {x['world']} | {x['cell']} | {x['runs']} | {o['reached']} | {o['missed']} | "
+            f"{o['collided']} | {o['lost']} | {o['timeout']} | {o['fallen']} | {o['skipped']} | {o['pending']} | "
+            f"{fmt(x['time_to_goal_median_s'], 1)} | {fmt(x['loc_error_median_m'])} / {fmt(x['loc_error_p99_m'])} | "
+            f"{x['compile_s']:.0f} | {fmt(x['robot_seconds_per_s'], 1)} |"
+        )
+    return "\n".join(lines)
+
+
+def merge(paths: list[str]) -> list[dict]:
+    """The rows of several saved results as one list (a robot/world/method cell may appear once)."""
+    import json
+    from pathlib import Path
+
+    rows, seen = [], {}
+    for path in paths:
+        try:
+            saved = json.loads(Path(path).read_text())
+        except (OSError, ValueError) as e:
+            raise ValueError(f"{path}: not a saved navigation result ({e})") from None
+        if not isinstance(saved, list) or not all(
+            isinstance(r, dict) and {"robot", "world", "cell"} <= r.keys() for r in saved
+        ):
+            raise ValueError(f"{path}: not a saved navigation result (expected a list of rows)")
+        for r in saved:
+            key = (r["robot"], r["world"], r["cell"])
+            if key in seen:
+                raise ValueError(f"{path}: cell {'/'.join(key)} is also in {seen[key]}")
+            seen[key] = path
+            rows.append(r)
+    return rows
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--robot", action="append", choices=["go2", "badger"], help="robots (default: both)")
     p.add_argument("--world", action="append", choices=["house", "warehouse"], help="worlds (default: both)")
@@ -112,48 +184,30 @@ def main() -> int:
         help="cap on each run's simulated time, s; goals still running count as failures (default: none)",
     )
     p.add_argument("--ablation", action="store_true", help="add the B+LO and B+SS rows")
+    p.add_argument("--cell", action="append", choices=tuple(CELLS), help="methods to run (repeatable; default both)")
+    p.add_argument("--merge", nargs="+", default=None, metavar="JSON", help="print the tables of saved rows")
     p.add_argument("--out", default=None, help="folder for each run's summary.json and paths.png")
     p.add_argument("--json", default=None, help="write the rows as JSON here")
-    args = p.parse_args()
-    robots = args.robot or ["go2", "badger"]
-    worlds = args.world or ["house", "warehouse"]
-    labels = ["baseline", "B+LO", "B+SS", "full"] if args.ablation else ["baseline", "full"]
+    args = p.parse_args(argv)
+    if args.merge:
+        rows = merge(args.merge)
+    else:
+        robots = args.robot or ["go2", "badger"]
+        worlds = args.world or ["house", "warehouse"]
+        labels = args.cell or (list(CELLS) if args.ablation else ["baseline", "full"])
 
-    import jax
+        import jax
 
-    print(f"`python {' '.join(sys.argv)}`  ")
-    print(f"machine: {platform.node()}, {jax.devices()[0].device_kind}, jax {jax.__version__}\n")
-    rows = [run_cell(args, r, w, label) for label in labels for r in robots for w in worlds]
-    cols = [(w, r) for w in worlds for r in robots]
-    print("| method | " + " | ".join(f"{w} / {r}" for w, r in cols) + " |")
-    print("|---|" + "---:|" * len(cols))
-    for label in labels:
-        cells = {(x["world"], x["robot"]): x for x in rows if x["cell"] == label}
-        print(
-            f"| {label} | "
-            + " | ".join(f"{100 * cells[c]['success_rate']:.1f}% of {cells[c]['goals']}" for c in cols)
-            + " |"
-        )
-    print(
-        "\n| robot | world | method | runs | reached | missed | collided | lost | timeout | fallen | skipped "
-        "| pending | time to goal s (median) | loc. error m (median / p99) | compile s | robot-s per s |"
-    )
-    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|")
-    for x in rows:
-        o = x["outcomes"]
-        fmt = lambda v, d=3: "-" if v is None else f"{v:.{d}f}"  # noqa: E731
-        print(
-            f"| {x['robot']} | {x['world']} | {x['cell']} | {x['runs']} | {o['reached']} | {o['missed']} | "
-            f"{o['collided']} | {o['lost']} | {o['timeout']} | {o['fallen']} | {o['skipped']} | {o['pending']} | "
-            f"{fmt(x['time_to_goal_median_s'], 1)} | {fmt(x['loc_error_median_m'])} / {fmt(x['loc_error_p99_m'])} | "
-            f"{x['compile_s']:.0f} | {fmt(x['robot_seconds_per_s'], 1)} |"
-        )
+        print(f"`python {' '.join(sys.argv)}`  ")
+        print(f"machine: {platform.node()}, {jax.devices()[0].device_kind}, jax {jax.__version__}\n")
+        rows = [run_cell(args, r, w, label) for label in labels for r in robots for w in worlds]
+    print(markdown(rows))
     if args.json:
         from jaxquad.io.jsonfile import write_json
 
         write_json(args.json, rows)
-    return 0
+    return rows
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()
