@@ -15,12 +15,19 @@ from jaxquad.kernels.costmap import INSCRIBED, CostGrid
 from jaxquad.kernels.lie import wrap_angle
 
 
-def obstacle(traj: Float[Array, "S T 3"], grid: CostGrid, collision_cost: Float[Array, ""]) -> Float[Array, " S"]:
-    """Mean inflation cost (0..1 of 252) along the trajectory, plus `collision_cost` if it enters a cell at
-    inscribed cost or above (lethal, inscribed, unknown or off the map)."""
-    c = grid.cost_at(traj[..., :2])
-    hit = jnp.any(c >= INSCRIBED, axis=-1)
-    soft = jnp.mean(jnp.minimum(c, INSCRIBED - 1) / (INSCRIBED - 1), axis=-1)
+def obstacle(
+    traj: Float[Array, "S T 3"], grid: CostGrid, collision_cost: Float[Array, ""], disks: Float[Array, "K 2"]
+) -> Float[Array, " S"]:
+    """Mean inflation cost (0..1 of 252) along the trajectory at the worst of the footprint's covering disks
+    (centres `disks` in the base frame, m; `kernels.footprint.footprint_disks`), plus `collision_cost` if
+    a disk centre enters a cell at inscribed cost or above (lethal, inscribed, unknown or off the map): with
+    the costmap's inscribed radius at the disks' radius, that is the footprint touching an obstacle."""
+    c, s = jnp.cos(traj[..., 2]), jnp.sin(traj[..., 2])
+    rot = jnp.stack([jnp.stack([c, -s], -1), jnp.stack([s, c], -1)], -2)  # (S, T, 2, 2) world <- base
+    xy = traj[..., None, :2] + jnp.einsum("stij,kj->stki", rot, disks)
+    cost = jnp.max(grid.cost_at(xy), axis=-1)  # (S, T)
+    hit = jnp.any(cost >= INSCRIBED, axis=-1)
+    soft = jnp.mean(jnp.minimum(cost, INSCRIBED - 1) / (INSCRIBED - 1), axis=-1)
     return soft + jnp.where(hit, collision_cost, 0.0)
 
 

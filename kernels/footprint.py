@@ -1,9 +1,15 @@
-"""Planar overlap of a robot's rectangular footprint with the yaw-rotated boxes of a world.
+"""A robot's rectangular planform: its overlap with the yaw-rotated boxes of a world (the collision judge),
+and the disks that cover it (what a costmap-based controller checks).
 
 Two rectangles in the plane are disjoint exactly when their projections onto one of the four edge
 normals (two per rectangle) are disjoint (the separating axis theorem); otherwise they overlap
 (touching counts as overlap). The boxes' heights are ignored: every box stands on the floor and
 rises above the robot's base.
+
+Covering disks: `n` equal disks centred on the rectangle's long axis, one per 1/n of its length, each
+reaching its slice's corners (radius sqrt(half_width^2 + (half_length / n)^2)). A disk is clear of obstacles
+when its centre is farther than the radius from them, so a costmap whose inscribed radius is that radius
+tests the whole footprint with `n` look-ups (the circle decomposition of car planners).
 """
 
 from __future__ import annotations
@@ -17,6 +23,19 @@ from jaxquad.kernels.raycast import Boxes
 def _axes(yaw: Float[Array, "*B"]) -> Float[Array, "*B 2 2"]:
     c, s = jnp.cos(yaw), jnp.sin(yaw)
     return jnp.stack([jnp.stack([c, s], -1), jnp.stack([-s, c], -1)], -2)
+
+
+def footprint_disks(
+    center: Float[Array, " 2"], half_extents: Float[Array, " 2"], n: int = 3
+) -> tuple[Float[Array, "n 2"], Float[Array, ""]]:
+    """Centres (base frame, m) and common radius (m) of `n` disks covering the rectangle of `half_extents`
+    (along the base's x and y) centred at `center`; the long axis is the longer of the two."""
+    center, half = jnp.asarray(center, jnp.float32), jnp.asarray(half_extents, jnp.float32)
+    along_x = half[0] >= half[1]
+    long, short = jnp.maximum(half[0], half[1]), jnp.minimum(half[0], half[1])
+    offsets = long * (2.0 * jnp.arange(n, dtype=jnp.float32) + 1.0 - n) / n  # slice centres
+    axis = jnp.where(along_x, jnp.array([1.0, 0.0]), jnp.array([0.0, 1.0]))
+    return center + offsets[:, None] * axis, jnp.sqrt(short**2 + (long / n) ** 2)
 
 
 def footprint_overlaps(boxes: Boxes, pose: Float[Array, " 3"], half_extents: Float[Array, " 2"]) -> Bool[Array, " B"]:

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxquad.kernels.footprint import footprint_overlaps
+from jaxquad.kernels.footprint import footprint_disks, footprint_overlaps
 from jaxquad.kernels.raycast import Boxes
 
 _overlaps = jax.jit(footprint_overlaps)
@@ -74,3 +74,20 @@ def test_overlap_under_vmap_and_touching_counts():
     got = jax.vmap(footprint_overlaps, in_axes=(None, 0, None))(boxes, poses, jnp.array([0.3, 0.1]))
     # x-extent reaches 0.5 at pose 0.2 (touching), 0.59 at 0.29, -0.2 at -0.5; turned 90 deg it reaches 0.1.
     np.testing.assert_array_equal(np.asarray(got)[:, 0], [True, True, False, False])
+
+
+@pytest.mark.parametrize("half", [(0.315, 0.17), (0.1, 0.4), (0.2, 0.2)])
+def test_disks_cover_the_rectangle_tightly(half):
+    """Every point of the rectangle lies in a disk, and the farthest one (a corner) exactly at the radius:
+    brute force over a dense grid of the rectangle."""
+    center = np.array([-0.07, 0.03])
+    disks, radius = footprint_disks(jnp.asarray(center), jnp.asarray(half), n=3)
+    disks, radius = np.asarray(disks, float), float(radius)
+    gx, gy = np.meshgrid(np.linspace(-half[0], half[0], 121), np.linspace(-half[1], half[1], 121))
+    pts = center + np.c_[gx.ravel(), gy.ravel()]
+    nearest = np.min(np.linalg.norm(pts[:, None] - disks[None], axis=-1), axis=1)
+    assert nearest.max() <= radius + 1e-6
+    np.testing.assert_allclose(nearest.max(), radius, rtol=1e-5)
+    long = int(np.argmax(half))
+    np.testing.assert_allclose(disks[:, 1 - long], center[1 - long], atol=1e-7)  # on the long axis
+    np.testing.assert_allclose(np.diff(disks[:, long]), 2 * max(half) / 3, rtol=1e-5)

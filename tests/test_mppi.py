@@ -2,6 +2,7 @@
 
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -14,19 +15,21 @@ from jaxquad.kernels.costmap import (
     CostmapParams,
     costmap_from_occupancy,
 )
+from jaxquad.kernels.footprint import footprint_disks, footprint_overlaps
 from jaxquad.kernels.planner import cost_to_go, descend, step_weights
+from jaxquad.kernels.raycast import Boxes
 
 RES = 0.05
 PARAMS = mppi.MppiParams.default(n_samples=256, horizon=30)
 
 
-def _world():
+def _world(inscribed_radius: float = 0.2):
     """4 x 4 m room with walls, a 1 m block in the middle between start and goal."""
     grid = np.zeros((80, 80), np.int8)
     grid[[0, -1], :] = 100
     grid[:, [0, -1]] = 100
     grid[25:55, 35:45] = 100
-    cost = costmap_from_occupancy(jnp.asarray(grid), RES, CostmapParams.default())
+    cost = costmap_from_occupancy(jnp.asarray(grid), RES, CostmapParams.default(inscribed_radius=inscribed_radius))
     return CostGrid(cost=cost, origin=jnp.zeros(2), resolution=jnp.asarray(RES))
 
 
@@ -38,19 +41,19 @@ def _plan(grid: CostGrid, start, goal):
     return grid.center_of(cells), valid, complete
 
 
-@jax.jit
-def _closed_loop(grid, start, goal, key):
+@eqx.filter_jit
+def _closed_loop(grid, start, goal, key, params=PARAMS):
     path, valid, _ = _plan(grid, start, goal)
 
     def tick(carry, k):
         pose, state = carry
         inputs = mppi.MppiInputs(pose=pose, path=path, path_valid=valid, goal=goal, grid=grid, key=k)
-        state, out = mppi.step(PARAMS, state, inputs)
-        pose = mppi.rollout(pose, out.cmd[None], PARAMS.dt)[0]
+        state, out = mppi.step(params, state, inputs)
+        pose = mppi.rollout(pose, out.cmd[None], params.dt)[0]
         return (pose, state), (pose, out.arrived, out.cmd)
 
     keys = jax.random.split(key, 300)
-    _, (poses, arrived, cmds) = jax.lax.scan(tick, (start, mppi.init(PARAMS, start)), keys)
+    _, (poses, arrived, cmds) = jax.lax.scan(tick, (start, mppi.init(params, start)), keys)
     return poses, arrived, cmds
 
 
@@ -89,6 +92,53 @@ def test_reaches_goal_around_obstacle_without_touching_it(seed):
     lo, hi = np.asarray(PARAMS.v_min), np.asarray(PARAMS.v_max)
     assert np.all(cmds >= lo - 1e-6) and np.all(cmds <= hi + 1e-6)
     assert np.all(cmds[first:] == 0.0)  # it stays put once there
+
+
+def _l_corridor(inscribed_radius: float):
+    """A 0.7 m wide corridor turning left by 90 degrees in a solid 4 x 4 m block: its cost grid and its
+    obstacle cells as boxes (for the exact footprint judge)."""
+    occ = np.full((80, 80), 100, np.int8)
+    occ[10:24, 6:66] = 0  # y 0.5-1.2, x 0.3-3.3
+    occ[10:74, 52:66] = 0  # x 2.6-3.3, y 0.5-3.7
+    cost = costmap_from_occupancy(jnp.asarray(occ), RES, CostmapParams.default(inscribed_radius=inscribed_radius))
+    rc = np.argwhere(occ >= 65)
+    boxes = Boxes(
+        center=jnp.asarray(np.c_[(rc[:, ::-1] + 0.5) * RES, np.full(len(rc), 0.5)], jnp.float32),
+        half=jnp.tile(jnp.array([RES / 2, RES / 2, 0.5]), (len(rc), 1)),
+        yaw=jnp.zeros(len(rc)),
+    )
+    return CostGrid(cost=cost, origin=jnp.zeros(2), resolution=jnp.asarray(RES)), boxes
+
+
+def test_rectangular_robot_keeps_its_whole_footprint_clear():
+    """A Go2-sized planform (0.63 x 0.34 m, centred 0.08 m behind the base) round a corridor's corner: with its
+    covering disks checked the rectangle never touches a wall; checked at the base alone (a 0.2 m disk) it
+    does in some runs."""
+    center, half = jnp.array([-0.076, 0.0]), jnp.array([0.315, 0.17])
+    disks, radius = footprint_disks(center, half)
+    with_disks = eqx.tree_at(lambda p: p.footprint_disks, PARAMS, disks)
+    start, goal = jnp.array([0.75, 0.85, 0.0]), jnp.array([2.95, 3.2, math.pi / 2])
+    hits = {}
+    for name, params, r in (("disks", with_disks, float(radius)), ("point", PARAMS, 0.2)):
+        grid, boxes = _l_corridor(r)
+        hits[name] = []
+        for seed in range(3):
+            poses, arrived, _ = _closed_loop(grid, start, goal, jax.random.key(seed), params)
+            assert np.asarray(arrived).any(), (name, seed)
+            hits[name].append(int(np.asarray(_touches(boxes, poses, center, half)).sum()))
+    assert hits["disks"] == [0, 0, 0] and max(hits["point"]) > 0, hits
+
+
+@jax.jit
+def _touches(boxes, poses, center, half):
+    """Whether the rectangle (centre `center`, base frame) at each base pose overlaps a box."""
+
+    def one(p):
+        c, s = jnp.cos(p[2]), jnp.sin(p[2])
+        rect = p.at[:2].add(jnp.array([[c, -s], [s, c]]) @ center)
+        return jnp.any(footprint_overlaps(boxes, rect, half))
+
+    return jax.vmap(one)(poses)
 
 
 def _stuck_run(grid, pose, n):
@@ -172,9 +222,10 @@ def test_critics_match_loop_references():
     goal = np.array([3.0, 1.0, 2.0], np.float32)
     carrot = np.array([1.0, 3.5], np.float32)
     window = rng.uniform(0, 4, (5, 2)).astype(np.float32)
+    disks = np.array([[-0.3, 0.05], [0.0, 0.0], [0.25, -0.02]], np.float32)  # footprint disk centres, base frame
     yes, no = jnp.array(True), jnp.array(False)
     got = {
-        "obstacle": critics.obstacle(jnp.asarray(traj), grid, jnp.float32(1000.0)),
+        "obstacle": critics.obstacle(jnp.asarray(traj), grid, jnp.float32(1000.0), jnp.asarray(disks)),
         "goal_distance": critics.goal_distance(jnp.asarray(traj), jnp.asarray(goal), yes),
         "goal_heading": critics.goal_heading(jnp.asarray(traj), jnp.asarray(goal), yes),
         "path_follow": critics.path_follow(jnp.asarray(traj), jnp.asarray(carrot), no),
@@ -184,9 +235,13 @@ def test_critics_match_loop_references():
     }
     for s in range(6):
         cells = []
-        for x, y, _ in traj[s]:
-            r, c = math.floor(y / RES), math.floor(x / RES)
-            cells.append(cost[r, c] if 0 <= r < 80 and 0 <= c < 80 else 254.0)
+        for x, y, th in traj[s]:
+            worst = 0.0
+            for dx, dy in disks:  # each disk centre in the world, then its cell
+                px, py = x + math.cos(th) * dx - math.sin(th) * dy, y + math.sin(th) * dx + math.cos(th) * dy
+                r, c = math.floor(py / RES), math.floor(px / RES)
+                worst = max(worst, cost[r, c] if 0 <= r < 80 and 0 <= c < 80 else 254.0)
+            cells.append(worst)
         cells = np.array(cells)
         want = {
             "obstacle": np.mean(np.minimum(cells, 252) / 252) + (1000.0 if np.any(cells >= 253) else 0.0),

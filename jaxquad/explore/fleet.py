@@ -120,7 +120,11 @@ def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_d
     # Path capacity: a winding route across the map (1.5 x its sides), one point every 4 cells.
     n_path = max(32, math.ceil(1.5 * (rows + cols) / 4))
     nav_params = nav.NavParams.default(
-        n_samples=cfg.samples, horizon=cfg.horizon, n_path_points=n_path, replan_ticks=REPLAN_TICKS
+        n_samples=cfg.samples,
+        horizon=cfg.horizon,
+        n_path_points=n_path,
+        replan_ticks=REPLAN_TICKS,
+        footprint=missions.footprint(fleet.robot),
     )
     nav_params = eqx.tree_at(lambda p: p.controller.dt, nav_params, jnp.asarray(tick_dt, jnp.float32))
     values = cfg.slam_values()

@@ -56,7 +56,9 @@ class NavConfig:
     samples: int = 1000  # MPPI samples
     horizon: int = 40  # MPPI steps (of one control tick each)
     pool_size: int = 64  # distinct goal poses drawn in the world
-    clearance: float = 0.5  # m from every box, for starts and goals
+    # m from every box, for starts and goals: room to turn in place on arrival (the Go2's farthest footprint
+    # corner is 0.43 m from its base) within the arrival tolerance and the localization error.
+    clearance: float = 0.75
     min_separation: float = 1.0  # m between consecutive goals
     arrive_xy: float = 0.15  # m: the controller's goal tolerance (its estimate), tighter than success's 0.25 m
     arrive_yaw: float = 0.15  # rad (success: 0.25 rad)
@@ -137,7 +139,11 @@ def _params(cfg: NavConfig, loop: cl.LoopConfig, fleet, occ, tick_dt: float) -> 
     # Path capacity: a winding route across the map (1.5 x its sides), one point every 4 cells.
     n_path = max(32, math.ceil(1.5 * (rows + cols) / 4))
     nav_params = nav.NavParams.default(
-        n_samples=cfg.samples, horizon=cfg.horizon, n_path_points=n_path, replan_ticks=REPLAN_TICKS
+        n_samples=cfg.samples,
+        horizon=cfg.horizon,
+        n_path_points=n_path,
+        replan_ticks=REPLAN_TICKS,
+        footprint=missions.footprint(fleet.robot),
     )
     nav_params = eqx.tree_at(
         lambda p: (p.controller.dt, p.controller.goal_xy_tol, p.controller.goal_yaw_tol),

@@ -18,6 +18,7 @@ from jaxtyping import Array, Bool, Float, Int, Key
 
 from jaxquad.kernels import mppi
 from jaxquad.kernels.costmap import CostGrid, CostmapParams, costmap_from_occupancy
+from jaxquad.kernels.footprint import footprint_disks
 from jaxquad.kernels.planner import cost_to_go, descend, nearest_open_cell, step_weights
 
 
@@ -38,11 +39,20 @@ class NavParams(eqx.Module):
         n_path_points: int = 160,
         path_stride: int = 4,
         replan_ticks: int = 10,
+        footprint: tuple | None = None,
     ) -> NavParams:
+        """`footprint`: (centre, half extents) of the robot's planform rectangle in the base frame (m,
+        `nav.missions.footprint`); the controller then checks the 3 disks covering it and the costmap's
+        inscribed radius becomes their radius. Without it the robot is a disk of 0.2 m."""
+        costmap, controller = CostmapParams.default(), mppi.MppiParams.default(n_samples=n_samples, horizon=horizon)
+        if footprint is not None:
+            disks, radius = footprint_disks(*footprint)
+            costmap = eqx.tree_at(lambda c: c.inscribed_radius, costmap, radius)
+            controller = eqx.tree_at(lambda c: c.footprint_disks, controller, disks)
         # 0.5 m goal tolerance of the planner: NavFn's in the authors' configuration.
         return cls(
-            costmap=CostmapParams.default(),
-            controller=mppi.MppiParams.default(n_samples=n_samples, horizon=horizon),
+            costmap=costmap,
+            controller=controller,
             cost_weight=jnp.asarray(3.0, jnp.float32),
             goal_tolerance=jnp.asarray(0.5, jnp.float32),
             n_path_points=n_path_points,
