@@ -6,8 +6,10 @@ them through the kinematic model, scores them with the critics of `kernels.criti
 nominal by their softmax-weighted mean (weights exp(-(cost - min cost) / temperature)). The first
 command is sent and the nominal shifted by one step. `dt` is both the model step and the control period.
 
-Goal: inside `goal_xy_tol` the robot turns in place to the goal yaw; it has arrived when the yaw error is
-also inside `goal_yaw_tol` (0.25 m / 0.25 rad, the paper's tolerances).
+Goal: inside `goal_xy_tol` the robot turns to the goal yaw while a proportional step (`k_xy`) keeps closing
+the position error (as Nav2's MPPI keeps its goal critic on until the goal checker is satisfied, rather
+than stopping at the tolerance's edge); it has arrived when the yaw error is also inside `goal_yaw_tol`
+(0.25 m / 0.25 rad, the paper's tolerances).
 Stuck recovery (Nav2's progress checker, then a backup behaviour): when the robot has not moved
 `progress_radius` from its last progress point for `progress_timeout`, it backs up at `backup_speed` for
 `recovery_time` if the costmap 0.3 m behind it is below inscribed cost, otherwise it turns in place at
@@ -43,7 +45,8 @@ class MppiParams(eqx.Module):
     lookahead: Float[Array, ""]  # m along the path from the robot's nearest path point to the carrot
     goal_xy_tol: Float[Array, ""]  # m
     goal_yaw_tol: Float[Array, ""]  # rad
-    k_yaw: Float[Array, ""]  # 1/s, yaw rate per rad of error when turning in place at the goal
+    k_yaw: Float[Array, ""]  # 1/s, yaw rate per rad of error when turning at the goal
+    k_xy: Float[Array, ""]  # 1/s, velocity per m of position error when turning at the goal
     progress_radius: Float[Array, ""]  # m
     progress_timeout: Float[Array, ""]  # s
     recovery_time: Float[Array, ""]  # s
@@ -78,6 +81,7 @@ class MppiParams(eqx.Module):
             "goal_xy_tol": 0.25,
             "goal_yaw_tol": 0.25,
             "k_yaw": 1.5,
+            "k_xy": 0.8,
             "progress_radius": 0.5,
             "progress_timeout": 10.0,
             "recovery_time": 2.0,
@@ -218,7 +222,11 @@ def step(params: MppiParams, state: MppiState, inputs: MppiInputs) -> tuple[Mppi
     nominal = jnp.einsum("s,stc->tc", weights, u)
     mppi_cmd = nominal[0]
 
-    turn = jnp.array([0.0, 0.0, 1.0]) * jnp.clip(params.k_yaw * yaw_err, params.v_min[2], params.v_max[2])
+    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
+    dxy_body = jnp.array(
+        [c * (goal[0] - pose[0]) + s * (goal[1] - pose[1]), -s * (goal[0] - pose[0]) + c * (goal[1] - pose[1])]
+    )
+    turn = jnp.clip(jnp.append(params.k_xy * dxy_body, params.k_yaw * yaw_err), params.v_min, params.v_max)
     cmd = jnp.where(at_xy, jnp.where(arrived, 0.0, turn), mppi_cmd)
 
     # Progress checker and recovery.

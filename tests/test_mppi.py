@@ -86,7 +86,8 @@ def test_reaches_goal_around_obstacle_without_touching_it(seed):
     poses, arrived, cmds = np.asarray(poses), np.asarray(arrived), np.asarray(cmds)
     assert arrived.any(), poses[-1]
     first = int(np.argmax(arrived))
-    assert np.linalg.norm(poses[first - 1, :2] - np.asarray(goal[:2])) < 0.25
+    # It kept closing the position error while turning to the goal yaw: well inside the 0.25 m tolerance.
+    assert np.linalg.norm(poses[first - 1, :2] - np.asarray(goal[:2])) < 0.125
     assert abs((poses[first - 1, 2] - math.pi / 2 + math.pi) % (2 * math.pi) - math.pi) < 0.25
     assert np.all(np.asarray(grid.cost_at(jnp.asarray(poses[:, :2]))) < INSCRIBED)
     lo, hi = np.asarray(PARAMS.v_min), np.asarray(PARAMS.v_max)
