@@ -60,7 +60,7 @@ class NavConfig:
     # corner is 0.43 m from its base) within the arrival tolerance and the localization error.
     clearance: float = 0.75
     min_separation: float = 1.0  # m between consecutive goals
-    arrive_xy: float = 0.15  # m: the controller's goal tolerance (its estimate), tighter than success's 0.25 m
+    arrive_xy: float = 0.08  # m: the controller's goal tolerance (its estimate), well inside success's 0.25 m
     arrive_yaw: float = 0.15  # rad (success: 0.25 rad)
     chunk_ticks: int = 100  # control ticks per compiled chunk (a multiple of the replan period)
     max_seconds: float | None = None  # stop after this much simulated time (whole chunks); None: when all are done
