@@ -78,8 +78,12 @@ def _mppi_rows(args, grid, open_rc, batch: int) -> list[dict]:
     from jaxquad.bench import time_jitted
     from jaxquad.kernels import mppi
     from jaxquad.kernels.costmap import CostGrid
+    from jaxquad.nav.missions import footprint
+    from jaxquad.robots import load
 
-    params = mppi.MppiParams.default(n_samples=args.nav_samples, horizon=args.nav_horizon)
+    # The closed loops' controller: the obstacle critic checks the Go2 footprint's three covering disks.
+    navp = nav.NavParams.default(n_samples=args.nav_samples, horizon=args.nav_horizon, footprint=footprint(load("go2")))
+    params = navp.controller
     rng = np.random.default_rng(batch)
     rc = open_rc[rng.integers(len(open_rc), size=batch)]
     r0 = np.clip(rc - _LOCAL // 2, 0, np.array(grid.shape) - _LOCAL)
@@ -88,7 +92,7 @@ def _mppi_rows(args, grid, open_rc, batch: int) -> list[dict]:
     pose = np.c_[(rc[:, ::-1] + 0.5) * _RES, rng.uniform(-np.pi, np.pi, batch)].astype(np.float32)
     goal = pose + np.array([2.0, 1.0, 0.5], np.float32)
     path = pose[:, None, :2] + np.linspace(0.0, 1.0, 160)[None, :, None] * (goal - pose)[:, None, :2]
-    cost = jax.jit(jax.vmap(lambda g: nav.cost_grid(nav.NavParams.default(), g, jnp.zeros(2), _RES).cost))(local)
+    cost = jax.jit(jax.vmap(lambda g: nav.cost_grid(navp, g, jnp.zeros(2), _RES).cost))(local)
     inputs = jax.vmap(mppi.MppiInputs)(  # one robot's inputs per call
         pose=jnp.asarray(pose),
         path=jnp.asarray(path, jnp.float32),
