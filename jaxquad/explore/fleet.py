@@ -31,6 +31,7 @@ from jaxquad.kernels.occupancy import occupancy_values
 from jaxquad.nav import explore as nav_explore
 from jaxquad.nav import missions
 from jaxquad.nav import navigate as nav
+from jaxquad.nav.fleet import body_params, keep_first
 
 VARIANTS = {"full": ("leg", "stabilized", "preintegrated"), "baseline": ("visual", "baseline", "off")}
 REPLAN_TICKS = 10  # control ticks between two planning periods (0.96 s)
@@ -114,8 +115,6 @@ class ExploreResult:
 
 
 def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_dt: float) -> xl.ExploreLoopParams:
-    from jaxquad.nav.fleet import body_params
-
     rows, cols = truth.grid.shape
     # Path capacity: a winding route across the map (1.5 x its sides), one point every 4 cells.
     n_path = max(32, math.ceil(1.5 * (rows + cols) / 4))
@@ -236,7 +235,7 @@ def explore(cfg: ExploreConfig, starts: np.ndarray | None = None, progress=None)
     for k in range(n_chunks):
         t1 = time.perf_counter()
         states, out = compiled(params, states, inputs)
-        outs.append(_keep(out, cfg.trace_robots))
+        outs.append(keep_first(out, cfg.trace_robots, ("true_pose", "pose", "goal")))
         ended = np.asarray(states.outcome) != xl.RUNNING
         run_s += time.perf_counter() - t1  # the outputs' copy to the host included
         if progress is not None:
@@ -267,11 +266,3 @@ def explore(cfg: ExploreConfig, starts: np.ndarray | None = None, progress=None)
         run_s=run_s,
         sim_s=float(trace.t[-1, 0]),
     )
-
-
-def _keep(out: xl.ExploreOutput, n_trace: int) -> xl.ExploreOutput:
-    """The chunk's outputs on the host; poses and goals of the first `n_trace` robots only."""
-    out = dataclasses.replace(  # sliced on the device: only what is kept is copied
-        out, true_pose=out.true_pose[:, :n_trace], pose=out.pose[:, :n_trace], goal=out.goal[:, :n_trace]
-    )
-    return jax.device_get(out)

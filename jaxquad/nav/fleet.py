@@ -286,7 +286,7 @@ def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray
     for _ in range(n_chunks_max):
         t1 = time.perf_counter()
         states, out = compiled(params, states, inputs)
-        outs.append(_keep(out, cfg.trace_robots))
+        outs.append(keep_first(out, cfg.trace_robots, ("true_pose", "pose", "odom", "cmd")))
         done = np.asarray(states.done)
         run_s += time.perf_counter() - t1  # the outputs' copy to the host included
         if progress is not None:
@@ -315,13 +315,7 @@ def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray
     )
 
 
-def _keep(out: cl.LoopOutput, n_trace: int) -> cl.LoopOutput:
-    """The chunk's outputs on the host; poses of the first `n_trace` robots only."""
-    out = dataclasses.replace(  # sliced on the device: only what is kept is copied
-        out,
-        true_pose=out.true_pose[:, :n_trace],
-        pose=out.pose[:, :n_trace],
-        odom=out.odom[:, :n_trace],
-        cmd=out.cmd[:, :n_trace],
-    )
-    return jax.device_get(out)
+def keep_first(out, n_trace: int, fields: tuple[str, ...]):
+    """A chunk's outputs (a dataclass of time-major (T, N, ...) arrays) on the host, with `fields` kept for
+    the first `n_trace` robots only (sliced on the device: only what is kept is copied)."""
+    return jax.device_get(dataclasses.replace(out, **{f: getattr(out, f)[:, :n_trace] for f in fields}))
