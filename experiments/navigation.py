@@ -142,11 +142,12 @@ def markdown(rows: list[dict]) -> str:
 
 
 def merge(paths: list[str]) -> list[dict]:
-    """The rows of several saved results as one list (a robot/world/method cell may appear once)."""
+    """The rows of several saved results as one list: a robot/world/method cell may appear once, and every row
+    must have been run with the same settings (fleet size, goals, MPPI and AMCL sizes, ...; the time cap aside)."""
     import json
     from pathlib import Path
 
-    rows, seen = [], {}
+    rows, seen, settings = [], {}, None
     for path in paths:
         try:
             saved = json.loads(Path(path).read_text())
@@ -157,6 +158,11 @@ def merge(paths: list[str]) -> list[dict]:
         ):
             raise ValueError(f"{path}: not a saved navigation result (expected a list of rows)")
         for r in saved:
+            # The time cap may differ (a long warehouse cell): goals it cut off show as `pending`.
+            mine = {k: v for k, v in (r.get("settings") or {}).items() if k != "max_seconds"}
+            settings = mine if settings is None else settings
+            if mine != settings:
+                raise ValueError(f"{path}: settings {mine} differ from {paths[0]}'s {settings}")
             key = (r["robot"], r["world"], r["cell"])
             if key in seen:
                 raise ValueError(f"{path}: cell {'/'.join(key)} is also in {seen[key]}")
@@ -183,9 +189,14 @@ def main(argv: list[str] | None = None) -> list[dict]:
         default=None,
         help="cap on each run's simulated time, s; goals still running count as failures (default: none)",
     )
-    p.add_argument("--ablation", action="store_true", help="add the B+LO and B+SS rows")
-    p.add_argument("--cell", action="append", choices=tuple(CELLS), help="methods to run (repeatable; default both)")
-    p.add_argument("--merge", nargs="+", default=None, metavar="JSON", help="print the tables of saved rows")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--ablation", action="store_true", help="add the B+LO and B+SS rows")
+    which.add_argument(
+        "--cell", action="append", choices=tuple(CELLS), help="methods to run (repeatable; default both)"
+    )
+    which.add_argument(
+        "--merge", nargs="+", default=None, metavar="JSON", help="print the tables of saved rows (runs nothing)"
+    )
     p.add_argument("--out", default=None, help="folder for each run's summary.json and paths.png")
     p.add_argument("--json", default=None, help="write the rows as JSON here")
     args = p.parse_args(argv)

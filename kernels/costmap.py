@@ -1,9 +1,10 @@
 """Costmaps from occupancy grids: lethal obstacles, the robot's inscribed radius, exponential inflation.
 
-Cost values follow Nav2's costmap_2d: 254 lethal (an obstacle cell), 253 inscribed (the robot's
-centre here would touch an obstacle), 252 * exp(-cost_scaling_factor * (d - inscribed_radius)) out
-to `inflation_radius`, 0 beyond, and 255 for unknown cells that no inflation reaches at 253 or more.
-d is the Euclidean distance (m) between cell centres, computed by an exact distance transform.
+Cost values follow Nav2's costmap_2d: 254 lethal (an obstacle cell), 253 inscribed (the robot's centre here,
+or with a footprint one of its covering disks' centres, would touch an obstacle), 252 *
+exp(-cost_scaling_factor * (d - inscribed_radius)) out to `inflation_radius`, 0 beyond, and 255 for unknown
+cells that no inflation reaches at 253 or more. d is the Euclidean distance (m) between cell centres, computed
+by an exact distance transform.
 
 Occupancy grids are int8: -1 unknown, 0..100 occupancy (`jaxquad.io.OccupancyMap.grid`); a cell is an
 obstacle at `occupied_thresh` and above (65, the map_server's 0.65).
@@ -24,7 +25,7 @@ _NO_OBSTACLE = 1e6
 class CostmapParams(eqx.Module):
     """Inflation numbers (traced leaves, m unless named otherwise)."""
 
-    inscribed_radius: Float[Array, ""]  # half the robot's width: cells closer than this are 253
+    inscribed_radius: Float[Array, ""]  # half the robot's width, or its covering disks' radius: closer cells are 253
     inflation_radius: Float[Array, ""]  # cost falls to 0 beyond this distance from an obstacle
     cost_scaling_factor: Float[Array, ""]  # 1/m, exponential decay rate of the inflation
     occupied_thresh: Float[Array, ""]  # occupancy (0..100) at and above which a cell is an obstacle

@@ -12,20 +12,20 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from jaxquad.kernels.costmap import INSCRIBED, CostGrid
-from jaxquad.kernels.lie import wrap_angle
+from jaxquad.kernels.lie import R2, wrap_angle
 
 
 def obstacle(
-    traj: Float[Array, "S T 3"], grid: CostGrid, collision_cost: Float[Array, ""], disks: Float[Array, "K 2"]
+    traj: Float[Array, "S T 3"], grid: CostGrid, collision_cost: Float[Array, ""], p_base_disk: Float[Array, "K 2"]
 ) -> Float[Array, " S"]:
     """Mean inflation cost (0..1 of 252) along the trajectory at the worst of the footprint's covering disks
-    (centres `disks` in the base frame, m; `kernels.footprint.footprint_disks`), plus `collision_cost` if
-    a disk centre enters a cell at inscribed cost or above (lethal, inscribed, unknown or off the map): with
-    the costmap's inscribed radius at the disks' radius, that is the footprint touching an obstacle."""
-    c, s = jnp.cos(traj[..., 2]), jnp.sin(traj[..., 2])
-    rot = jnp.stack([jnp.stack([c, -s], -1), jnp.stack([s, c], -1)], -2)  # (S, T, 2, 2) world <- base
-    xy = traj[..., None, :2] + jnp.einsum("stij,kj->stki", rot, disks)
-    cost = jnp.max(grid.cost_at(xy), axis=-1)  # (S, T)
+    (centres `p_base_disk` in the base frame, m; `kernels.footprint.footprint_disks`), plus `collision_cost`
+    if a disk centre enters a cell at inscribed cost or above (lethal, inscribed, unknown or off the map):
+    with the costmap's inscribed radius at the disks' radius, that is the footprint touching an obstacle, to
+    within the grid's resolution (distances run between cell centres)."""
+    R_world_base = R2(traj[..., 2])  # (S, T, 2, 2)
+    p_world_disk = traj[..., None, :2] + jnp.einsum("stij,kj->stki", R_world_base, p_base_disk)
+    cost = jnp.max(grid.cost_at(p_world_disk), axis=-1)  # (S, T)
     hit = jnp.any(cost >= INSCRIBED, axis=-1)
     soft = jnp.mean(jnp.minimum(cost, INSCRIBED - 1) / (INSCRIBED - 1), axis=-1)
     return soft + jnp.where(hit, collision_cost, 0.0)

@@ -6,10 +6,11 @@ normals (two per rectangle) are disjoint (the separating axis theorem); otherwis
 (touching counts as overlap). The boxes' heights are ignored: every box stands on the floor and
 rises above the robot's base.
 
-Covering disks: `n` equal disks centred on the rectangle's long axis, one per 1/n of its length, each
-reaching its slice's corners (radius sqrt(half_width^2 + (half_length / n)^2)). A disk is clear of obstacles
-when its centre is farther than the radius from them, so a costmap whose inscribed radius is that radius
-tests the whole footprint with `n` look-ups (the circle decomposition of car planners).
+Covering disks: `n` equal disks centred on the rectangle's long axis, one per 1/n of its length, each reaching
+its slice's corners (radius sqrt(half_width^2 + (half_length / n)^2)). A disk is clear of obstacles when its
+centre is farther than the radius from them, so a costmap whose inscribed radius is that radius tests the
+whole footprint with `n` look-ups (to within the grid's resolution) (the circle decomposition of car
+planners).
 """
 
 from __future__ import annotations
@@ -17,17 +18,17 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from jaxquad.kernels.lie import R2
 from jaxquad.kernels.raycast import Boxes
 
 
 def _axes(yaw: Float[Array, "*B"]) -> Float[Array, "*B 2 2"]:
-    c, s = jnp.cos(yaw), jnp.sin(yaw)
-    return jnp.stack([jnp.stack([c, s], -1), jnp.stack([-s, c], -1)], -2)
+    return jnp.swapaxes(R2(yaw), -1, -2)  # rows: the rectangle's unit axes in the world
 
 
 def footprint_disks(
     center: Float[Array, " 2"], half_extents: Float[Array, " 2"], n: int = 3
-) -> tuple[Float[Array, "n 2"], Float[Array, ""]]:
+) -> tuple[Float[Array, "K 2"], Float[Array, ""]]:
     """Centres (base frame, m) and common radius (m) of `n` disks covering the rectangle of `half_extents`
     (along the base's x and y) centred at `center`; the long axis is the longer of the two."""
     center, half = jnp.asarray(center, jnp.float32), jnp.asarray(half_extents, jnp.float32)

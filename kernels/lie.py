@@ -98,6 +98,12 @@ def R_level_base(roll: Float[ArrayLike, ""], pitch: Float[ArrayLike, ""]) -> Flo
     return (SO3.from_y_radians(pitch) @ SO3.from_x_radians(roll)).as_matrix()
 
 
+def R2(theta: Float[ArrayLike, "*B"]) -> Float[Array, "*B 2 2"]:
+    """Planar rotation matrices [[c, -s], [s, c]] (a child frame's axes in its parent's)."""
+    c, s = jnp.cos(theta), jnp.sin(theta)
+    return jnp.stack([jnp.stack([c, -s], -1), jnp.stack([s, c], -1)], -2)
+
+
 def wrap_angle(a: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch"]:
     """Angle wrapped to [-pi, pi)."""
     return (jnp.asarray(a) + jnp.pi) % (2.0 * jnp.pi) - jnp.pi

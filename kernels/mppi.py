@@ -6,13 +6,16 @@ them through the kinematic model, scores them with the critics of `kernels.criti
 nominal by their softmax-weighted mean (weights exp(-(cost - min cost) / temperature)). The first
 command is sent and the nominal shifted by one step. `dt` is both the model step and the control period.
 
-Goal: inside `goal_xy_tol` the robot turns to the goal yaw while a proportional step (`k_xy`) keeps closing
-the position error (as Nav2's MPPI keeps its goal critic on until the goal checker is satisfied, rather
-than stopping at the tolerance's edge); it has arrived when the yaw error is also inside `goal_yaw_tol`
-(0.25 m / 0.25 rad, the paper's tolerances).
+Goal: inside `goal_xy_tol` the robot turns to the goal yaw while a proportional step (`k_xy`, scaled to the
+speed limits; no obstacle check, so keep the tolerance small near obstacles) keeps closing the position error
+(as Nav2's MPPI keeps its goal critic on until the goal checker is satisfied, rather than stopping at the
+tolerance's edge); it has arrived when the yaw error is also inside `goal_yaw_tol` (0.25 m / 0.25 rad, the
+paper's tolerances).
+
 Stuck recovery (Nav2's progress checker, then a backup behaviour): when the robot has not moved
 `progress_radius` from its last progress point for `progress_timeout`, it backs up at `backup_speed` for
-`recovery_time` if the costmap 0.3 m behind it is below inscribed cost, otherwise it turns in place at
+`recovery_time` if its footprint's disks stay below inscribed cost all along that backup and 0.1 m more,
+otherwise it turns in place at
 `recovery_yaw_rate`; then the nominal sequence restarts from zero.
 """
 
@@ -24,10 +27,11 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Key
 
 from jaxquad.kernels import critics
-from jaxquad.kernels.costmap import INSCRIBED, CostGrid
-from jaxquad.kernels.lie import wrap_angle
+from jaxquad.kernels.costmap import CostGrid
+from jaxquad.kernels.lie import R2, wrap_angle
 
-_BACKUP_CHECK = 0.3  # m behind the robot that must be free to back up
+_BACKUP_MARGIN = 0.1  # m of free room asked for beyond the backup's own length
+_BACKUP_CHECKS = 8  # poses checked along it
 
 
 class MppiParams(eqx.Module):
@@ -184,9 +188,18 @@ def _total_cost(params: MppiParams, traj, u, last_cmd, inputs: MppiInputs, near_
     return sum(w[i] * t for i, t in enumerate(terms))
 
 
+def _toward(params: MppiParams, v_xy: Float[Array, " 2"]) -> Float[Array, " 2"]:
+    """The planar velocity scaled down (direction kept) until it lies within the limits."""
+    lim = jnp.where(v_xy >= 0, params.v_max[:2], -params.v_min[:2])
+    return v_xy * jnp.minimum(1.0, jnp.min(lim / jnp.maximum(jnp.abs(v_xy), 1e-9)))
+
+
 def _recovery_command(params: MppiParams, pose, grid: CostGrid) -> Float[Array, " 3"]:
-    behind = pose[:2] - _BACKUP_CHECK * jnp.array([jnp.cos(pose[2]), jnp.sin(pose[2])])
-    can_back = grid.cost_at(behind) < INSCRIBED
+    # Back up only if the footprint's disks stay clear along the whole backup (and a margin beyond it).
+    back = params.backup_speed * params.recovery_time + _BACKUP_MARGIN
+    along = jnp.linspace(0.0, 1.0, _BACKUP_CHECKS)[:, None] * back * jnp.array([jnp.cos(pose[2]), jnp.sin(pose[2])])
+    path = jnp.concatenate([pose[:2] - along, jnp.full((_BACKUP_CHECKS, 1), pose[2])], axis=1)
+    can_back = critics.obstacle(path[None], grid, jnp.float32(1.0), params.footprint_disks)[0] < 1.0
     return jnp.where(
         can_back,
         jnp.array([-1.0, 0.0, 0.0]) * params.backup_speed,
@@ -222,11 +235,10 @@ def step(params: MppiParams, state: MppiState, inputs: MppiInputs) -> tuple[Mppi
     nominal = jnp.einsum("s,stc->tc", weights, u)
     mppi_cmd = nominal[0]
 
-    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
-    dxy_body = jnp.array(
-        [c * (goal[0] - pose[0]) + s * (goal[1] - pose[1]), -s * (goal[0] - pose[0]) + c * (goal[1] - pose[1])]
+    p_base_goal = R2(pose[2]).T @ (goal[:2] - pose[:2])
+    turn = jnp.append(
+        _toward(params, params.k_xy * p_base_goal), jnp.clip(params.k_yaw * yaw_err, params.v_min[2], params.v_max[2])
     )
-    turn = jnp.clip(jnp.append(params.k_xy * dxy_body, params.k_yaw * yaw_err), params.v_min, params.v_max)
     cmd = jnp.where(at_xy, jnp.where(arrived, 0.0, turn), mppi_cmd)
 
     # Progress checker and recovery.

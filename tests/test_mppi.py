@@ -142,8 +142,10 @@ def _touches(boxes, poses, center, half):
     return jax.vmap(one)(poses)
 
 
-def _stuck_run(grid, pose, n):
-    params = mppi.MppiParams.default(n_samples=64, horizon=10, progress_timeout=1.0, recovery_time=0.5)
+def _stuck_run(grid, pose, n, disks=((0.0, 0.0),)):
+    params = mppi.MppiParams.default(
+        n_samples=64, horizon=10, progress_timeout=1.0, recovery_time=0.5, footprint_disks=disks
+    )
     path = jnp.broadcast_to(jnp.array([3.4, 3.4]), (8, 2))
 
     def tick(state, k):  # the robot never moves, whatever it is told
@@ -167,6 +169,43 @@ def test_stuck_robot_backs_up_or_turns():
     # Facing away from a wall 0.2 m behind: no room to back up, so it turns in place.
     rec, cmd = jax.jit(_stuck_run, static_argnums=2)(grid, jnp.array([0.25, 2.0, 0.0]), 13)
     np.testing.assert_allclose(np.asarray(cmd)[11], [0.0, 0.0, 0.5], atol=1e-7)
+
+
+def test_backup_checks_the_footprint():
+    """A Go2-sized robot facing away from a wall: its rear disk (0.29 m behind the base, radius 0.2 m) decides
+    whether the 0.05 m backup (and 0.1 m more) stays clear, where the base point alone would back up."""
+    disks, radius = footprint_disks(jnp.array([-0.076, 0.0]), jnp.array([0.315, 0.17]))
+    grid = _world(float(radius))
+    run = jax.jit(_stuck_run, static_argnums=2)
+    # Base 0.7 m from the wall's cell centres: rear disk centre 0.41 m, 0.26 m after the checked 0.15 m.
+    cmd = np.asarray(run(grid, jnp.array([0.725, 2.0, 0.0]), 13, disks)[1])
+    np.testing.assert_allclose(cmd[11], [-0.1, 0.0, 0.0], atol=1e-7)
+    # 0.55 m: the rear disk would come within 0.11 m of the wall: it turns instead; the base alone backs up.
+    cmd = np.asarray(run(grid, jnp.array([0.575, 2.0, 0.0]), 13, disks)[1])
+    np.testing.assert_allclose(cmd[11], [0.0, 0.0, 0.5], atol=1e-7)
+    cmd = np.asarray(run(grid, jnp.array([0.575, 2.0, 0.0]), 13)[1])
+    np.testing.assert_allclose(cmd[11], [-0.1, 0.0, 0.0], atol=1e-7)
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.7, -2.5])
+def test_goal_phase_closes_position_error_towards_the_goal(yaw):
+    """Inside the goal tolerance: yaw rate k_yaw * error, and a planar velocity k_xy * (goal - pose) in the
+    body frame, scaled as a whole into the limits (its world direction points at the goal)."""
+    grid = _world()
+    pose = jnp.array([2.0, 0.6, yaw])
+    for offset in (np.array([0.05, -0.03]), np.array([-0.2, 0.12])):
+        goal = jnp.array([2.0 + offset[0], 0.6 + offset[1], yaw + 1.0])
+        inputs = mppi.MppiInputs(pose, jnp.zeros((8, 2)), jnp.zeros(8, bool), goal, grid, jax.random.key(0))
+        _, out = jax.jit(mppi.step)(PARAMS, mppi.init(PARAMS, pose), inputs)
+        cmd = np.asarray(out.cmd)
+        c, s = math.cos(yaw), math.sin(yaw)
+        v_world = np.array([c * cmd[0] - s * cmd[1], s * cmd[0] + c * cmd[1]])
+        want = 0.8 * offset
+        v_body = np.array([c * want[0] + s * want[1], -s * want[0] + c * want[1]])
+        hi, lo = np.asarray(PARAMS.v_max[:2]), -np.asarray(PARAMS.v_min[:2])
+        scale = min(1.0, *(np.where(v_body >= 0, hi, lo) / np.abs(v_body)))
+        np.testing.assert_allclose(v_world, scale * want, atol=1e-6)
+        np.testing.assert_allclose(cmd[2], 0.8, atol=1e-6)  # k_yaw 1.5 x 1 rad, at the 0.8 rad/s limit
 
 
 def test_non_finite_pose_gives_zero_command_and_flag():

@@ -92,3 +92,17 @@ def test_bench_section_json(capsys):
     assert [r["kernel"] for r in rows] == ["mppi_step", "costmap", "plan", "frontier_clusters", "frontier_choice"]
     assert all(r["run_ms"] > 0 and r["batch"] == 2 for r in rows)
     assert rows[2]["ok"] == 2
+
+
+def test_footprint_of_a_robot_sets_disks_and_inscribed_radius():
+    """NavParams from a built-in robot's planform (NumPy, from its MuJoCo model): 3 disks on the long axis and
+    the costmap's inscribed radius sqrt(half_width^2 + (half_length / 3)^2)."""
+    from jaxquad.nav.missions import footprint
+    from jaxquad.robots import load
+
+    center, half = footprint(load("go2"))
+    p = nav.NavParams.default(n_samples=8, horizon=4, footprint=(center, half))
+    disks = np.asarray(p.controller.footprint_disks)
+    np.testing.assert_allclose(disks[:, 0], center[0] + np.array([-2, 0, 2]) * half[0] / 3, atol=1e-6)
+    np.testing.assert_allclose(disks[:, 1], center[1], atol=1e-7)
+    np.testing.assert_allclose(float(p.costmap.inscribed_radius), math.hypot(half[1], half[0] / 3), rtol=1e-6)

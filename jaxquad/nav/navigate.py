@@ -46,7 +46,7 @@ class NavParams(eqx.Module):
         inscribed radius becomes their radius. Without it the robot is a disk of 0.2 m."""
         costmap, controller = CostmapParams.default(), mppi.MppiParams.default(n_samples=n_samples, horizon=horizon)
         if footprint is not None:
-            disks, radius = footprint_disks(*footprint)
+            disks, radius = footprint_disks(*(jnp.asarray(a, jnp.float32) for a in footprint))
             costmap = eqx.tree_at(lambda c: c.inscribed_radius, costmap, radius)
             controller = eqx.tree_at(lambda c: c.footprint_disks, controller, disks)
         # 0.5 m goal tolerance of the planner: NavFn's in the authors' configuration.
