@@ -5,6 +5,8 @@ grid:  grid-search counts on 1 and on 2 devices (a grid size that is not a multi
        and a vmapped function with time-major output split over 2 devices.
 fleet: a 3-robot fleet (padding to 4 on 2 devices) simulated on 1 and on 2 devices, and the 1-device
        log estimated on 1 and on 2 devices.
+navigate: a 3-robot navigation closed loop (padding to 4 on 2 devices) for one 0.96 s chunk, on 1 and on 2
+       devices.
 multiprocess: one of two processes: the grid on the devices of both, and a time-major (T, N) array
        split over its robot axis gathered piece by piece; process 0 writes OUT.
 """
@@ -111,6 +113,20 @@ def multiprocess(out: str) -> None:
         np.savez(out, **res)
 
 
+def navigate(out: str) -> None:
+    from jaxquad.nav.fleet import NavConfig
+    from jaxquad.nav.fleet import navigate as run
+
+    res = {}
+    for d in (1, 2):
+        cfg = NavConfig(
+            n_robots=3, n_goals=1, particles=64, samples=16, horizon=5, chunk_ticks=10, max_seconds=0.5, devices=d
+        )
+        r = run(cfg)
+        res |= {f"d{d}_{k}": np.asarray(getattr(r, k)) for k in ("outcome", "loc_error", "true_pose", "pose", "t")}
+    np.savez(out, **res)
+
+
 if __name__ == "__main__":
-    scenarios = {"grid": grid, "fleet": fleet, "multiprocess": multiprocess}
+    scenarios = {"grid": grid, "fleet": fleet, "navigate": navigate, "multiprocess": multiprocess}
     scenarios[sys.argv[1]](*sys.argv[2:])

@@ -198,3 +198,13 @@ def test_fleet_same_on_two_devices(fleet_run):
     assert r["d1_q"].shape[:2] == (3, 64) and r["d1_depth"].shape == (3, 8, 12, 16) and not r["d1_fallen"].any()
     for k in [f[3:] for f in r.files if f.startswith("d1_")]:
         _close(r[f"d2_{k}"], r[f"d1_{k}"], k)
+
+
+@pytest.mark.slow
+def test_navigation_loop_same_on_two_devices(tmp_path):
+    out = tmp_path / "nav.npz"
+    _two_devices("navigate", str(out), timeout=900)
+    r = np.load(out)
+    assert r["d1_true_pose"].shape == (10, 3, 3) and np.ptp(r["d1_true_pose"][:, :, :2], axis=0).max() > 0.01
+    for k in [f[3:] for f in r.files if f.startswith("d1_")]:
+        _close(r[f"d2_{k}"], r[f"d1_{k}"], k)

@@ -15,6 +15,7 @@ from jaxquad.nav.report import SUMMARY_KIND
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from jaxquad.cli import add_devices_argument
     from jaxquad.nav.fleet import VARIANTS
     from jaxquad.nav.missions import MAP_SOURCES
 
@@ -89,6 +90,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="stop after this much simulated time, s (default: when every run has ended)",
     )
     parser.add_argument("--plot-robots", type=int, default=8, help="robots drawn in paths.png (default 8)")
+    add_devices_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -136,6 +138,7 @@ def run(args: argparse.Namespace) -> int:
         max_seconds=args.max_seconds,
         map_walk_seconds=args.map_walk_seconds,
         trace_robots=max(args.plot_robots, 1),
+        devices=args.devices,
     )
     with progress_bar("navigate", "goal") as progress:
         result = navigate(cfg, progress=progress)

@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxquad import vo
+from jaxquad import parallel, vo
 from jaxquad.estimate.pipeline import PipelineParams
 from jaxquad.kernels.scan import CameraIntrinsics
 from jaxquad.nav import closed_loop as cl
@@ -69,6 +69,7 @@ class NavConfig:
     scans: str | None = None
     randomize: bool = True  # per-robot masses, friction, motors and noise levels
     trace_robots: int = 64  # robots whose paths are kept in the result
+    devices: int | None = None  # devices the robots are split over (`jaxquad.parallel.mesh`); None: all local ones
 
     def __post_init__(self):
         if self.variant not in VARIANTS:
@@ -188,25 +189,33 @@ def body_params(fleet, odometry: str, range_min: float, range_max: float) -> Bod
 _FUNCTIONS: dict = {}
 
 
-def _compiled_functions(fleet, loop: cl.LoopConfig):
-    c = dataclasses.replace(fleet.config, seed=0, n_robots=1, n_worlds=1, style="calm", randomize=True)
-    key = (fleet.robot.path, c, loop)
+def _input_axes(fleet, inputs: cl.LoopInputs):
+    """vmap axes of LoopInputs: per-robot model fields, setup and goals; the map and the replan flag shared."""
+    fields = lambda x: (x.model, x.setup, x.nav_map, x.goal_ids, x.replan)  # noqa: E731
+    return eqx.tree_at(fields, inputs, (fleet.model_in_axes, 0, None, 0, None))
+
+
+def _compiled_functions(fleet, loop: cl.LoopConfig, mesh):
+    c = dataclasses.replace(fleet.config, seed=0, n_robots=1, n_worlds=1, style="calm", randomize=True, devices=None)
+    key = (fleet.robot.path, c, loop, mesh)
     if key not in _FUNCTIONS:
         fns = cl.make_loop(fleet, loop)
 
-        def axes(inputs):  # vmap axes of LoopInputs: per-robot model fields, setup and goals; map and flag shared
-            fields = lambda x: (x.model, x.setup, x.nav_map, x.goal_ids, x.replan)  # noqa: E731
-            return eqx.tree_at(fields, inputs, (fleet.model_in_axes, 0, None, 0, None))
-
         def init(params, inputs, qpos0, keys):
-            return jax.vmap(fns.init, in_axes=(None, axes(inputs), 0, 0))(params, inputs, qpos0, keys)
+            ax = (None, _input_axes(fleet, inputs), 0, 0)
+            return parallel.shard_batched(jax.vmap(fns.init, in_axes=ax), mesh, ax, 0)(params, inputs, qpos0, keys)
 
         def chunk(params, states, inputs, n_ticks: int, replan_ticks: int):
-            def body(s, i):
-                at_i = eqx.tree_at(lambda x: x.replan, inputs, i % replan_ticks == 0)
-                return jax.vmap(fns.tick, in_axes=(None, 0, axes(at_i)))(params, s, at_i)
+            def run(params, states, inputs):
+                def body(s, i):
+                    at_i = eqx.tree_at(lambda x: x.replan, inputs, i % replan_ticks == 0)
+                    return jax.vmap(fns.tick, in_axes=(None, 0, _input_axes(fleet, at_i)))(params, s, at_i)
 
-            return jax.lax.scan(body, states, jnp.arange(n_ticks))
+                return jax.lax.scan(body, states, jnp.arange(n_ticks))
+
+            # Robots split over the devices: states at axis 0, the time-major outputs at axis 1.
+            ax = (None, 0, _input_axes(fleet, inputs))
+            return parallel.shard_batched(run, mesh, ax, (0, 1))(params, states, inputs)
 
         _FUNCTIONS[key] = (
             jax.jit(init),
@@ -224,6 +233,9 @@ def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray
     from jaxquad.sim import FleetConfig, build_fleet
 
     loop = cfg.loop_config()
+    mesh = parallel.mesh(cfg.devices)
+    if jax.process_count() > 1:
+        raise ValueError("navigate runs in one process (its --devices split the robots over that process's devices)")
     fleet = build_fleet(
         FleetConfig(
             robot=cfg.robot,
@@ -264,10 +276,17 @@ def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray
     qpos0[:, a + 3 : a + 7] = np.stack(
         [np.cos(starts[:, 2] / 2), 0 * starts[:, 2], 0 * starts[:, 2], np.sin(starts[:, 2] / 2)], 1
     )
-    init, chunk = _compiled_functions(fleet, loop)
-    keys = jax.random.split(jax.random.key(cfg.seed), cfg.n_robots)
+    n, n_batch = cfg.n_robots, parallel.padded_size(cfg.n_robots, mesh)
+    init, chunk = _compiled_functions(fleet, loop, mesh)
+    keys = jax.random.split(jax.random.key(cfg.seed), n)
+    # Robots past n (filling the last device) are copies of the last robot, computed and dropped.
+    ax = (_input_axes(fleet, inputs), 0, 0)
+    inputs, qpos0, keys = parallel.place(
+        parallel.pad((inputs, jnp.asarray(qpos0, jnp.float32), keys), n_batch, ax), mesh, ax
+    )
+    params = parallel.place(params, mesh, None)
     t0 = time.perf_counter()
-    states = init(params, inputs, jnp.asarray(qpos0, jnp.float32), keys)
+    states = init(params, inputs, qpos0, keys)
     compiled = chunk.lower(
         params, states, inputs, n_ticks=cfg.chunk_ticks, replan_ticks=params.nav.replan_ticks
     ).compile()
@@ -286,11 +305,11 @@ def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray
     for _ in range(n_chunks_max):
         t1 = time.perf_counter()
         states, out = compiled(params, states, inputs)
-        outs.append(keep_first(out, cfg.trace_robots, ("true_pose", "pose", "odom", "cmd")))
-        done = np.asarray(states.done)
+        outs.append(keep_first(out, min(cfg.trace_robots, n), ("true_pose", "pose", "odom", "cmd")))
+        done = np.asarray(states.done)[:n]
         run_s += time.perf_counter() - t1  # the outputs' copy to the host included
         if progress is not None:
-            progress(int((np.asarray(states.outcome) != cl.PENDING).sum()), total)
+            progress(int((np.asarray(states.outcome)[:n] != cl.PENDING).sum()), total)
         if done.all():
             break
     trace = jax.tree.map(lambda *x: np.concatenate(x), *outs)
@@ -300,13 +319,13 @@ def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray
         world=world,
         starts=starts,
         goals=np.asarray(pool)[goal_ids],
-        outcome=np.asarray(states.outcome),
-        elapsed=np.asarray(states.elapsed),
-        end_error=np.asarray(states.end_error),
+        outcome=np.asarray(states.outcome)[:n],
+        elapsed=np.asarray(states.elapsed)[:n],
+        end_error=np.asarray(states.end_error)[:n],
         t=trace.t[:, 0],
-        active=trace.active,
-        loc_error=trace.loc_error,
-        recovering=trace.recovering,
+        active=trace.active[:, :n],
+        loc_error=trace.loc_error[:, :n],
+        recovering=trace.recovering[:, :n],
         true_pose=trace.true_pose,
         pose=trace.pose,
         compile_s=compile_s,
