@@ -15,6 +15,16 @@ from jaxquad.kernels.costmap import INSCRIBED, CostGrid
 from jaxquad.kernels.lie import R2, wrap_angle
 
 
+def footprint_cost(
+    traj: Float[Array, "S T 3"], grid: CostGrid, p_base_disk: Float[Array, "K 2"]
+) -> Float[Array, "S T"]:
+    """Cost of the worst of the footprint's covering disks (centres `p_base_disk` in the base frame, m) at each
+    pose: the cell under each disk centre, lethal off the grid."""
+    R_world_base = R2(traj[..., 2])  # (S, T, 2, 2)
+    p_world_disk = traj[..., None, :2] + jnp.einsum("stij,kj->stki", R_world_base, p_base_disk)
+    return jnp.max(grid.cost_at(p_world_disk), axis=-1)
+
+
 def obstacle(
     traj: Float[Array, "S T 3"], grid: CostGrid, collision_cost: Float[Array, ""], p_base_disk: Float[Array, "K 2"]
 ) -> Float[Array, " S"]:
@@ -23,9 +33,7 @@ def obstacle(
     if a disk centre enters a cell at inscribed cost or above (lethal, inscribed, unknown or off the map):
     with the costmap's inscribed radius at the disks' radius, that is the footprint touching an obstacle, to
     within the grid's resolution (distances run between cell centres)."""
-    R_world_base = R2(traj[..., 2])  # (S, T, 2, 2)
-    p_world_disk = traj[..., None, :2] + jnp.einsum("stij,kj->stki", R_world_base, p_base_disk)
-    cost = jnp.max(grid.cost_at(p_world_disk), axis=-1)  # (S, T)
+    cost = footprint_cost(traj, grid, p_base_disk)
     hit = jnp.any(cost >= INSCRIBED, axis=-1)
     soft = jnp.mean(jnp.minimum(cost, INSCRIBED - 1) / (INSCRIBED - 1), axis=-1)
     return soft + jnp.where(hit, collision_cost, 0.0)

@@ -27,7 +27,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Key
 
 from jaxquad.kernels import critics
-from jaxquad.kernels.costmap import CostGrid
+from jaxquad.kernels.costmap import INSCRIBED, CostGrid
 from jaxquad.kernels.lie import R2, wrap_angle
 
 _BACKUP_MARGIN = 0.1  # m of free room asked for beyond the backup's own length
@@ -199,7 +199,7 @@ def _recovery_command(params: MppiParams, pose, grid: CostGrid) -> Float[Array, 
     back = params.backup_speed * params.recovery_time + _BACKUP_MARGIN
     along = jnp.linspace(0.0, 1.0, _BACKUP_CHECKS)[:, None] * back * jnp.array([jnp.cos(pose[2]), jnp.sin(pose[2])])
     path = jnp.concatenate([pose[:2] - along, jnp.full((_BACKUP_CHECKS, 1), pose[2])], axis=1)
-    can_back = critics.obstacle(path[None], grid, jnp.float32(1.0), params.footprint_disks)[0] < 1.0
+    can_back = jnp.all(critics.footprint_cost(path[None], grid, params.footprint_disks) < INSCRIBED)
     return jnp.where(
         can_back,
         jnp.array([-1.0, 0.0, 0.0]) * params.backup_speed,

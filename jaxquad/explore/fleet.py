@@ -30,8 +30,7 @@ from jaxquad.explore import loop as xl
 from jaxquad.kernels.occupancy import occupancy_values
 from jaxquad.nav import explore as nav_explore
 from jaxquad.nav import missions
-from jaxquad.nav import navigate as nav
-from jaxquad.nav.fleet import body_params, keep_first
+from jaxquad.nav.fleet import body_params, keep_first, loop_nav_params
 
 VARIANTS = {"full": ("leg", "stabilized", "preintegrated"), "baseline": ("visual", "baseline", "off")}
 REPLAN_TICKS = 10  # control ticks between two planning periods (0.96 s)
@@ -115,17 +114,8 @@ class ExploreResult:
 
 
 def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_dt: float) -> xl.ExploreLoopParams:
-    rows, cols = truth.grid.shape
-    # Path capacity: a winding route across the map (1.5 x its sides), one point every 4 cells.
-    n_path = max(32, math.ceil(1.5 * (rows + cols) / 4))
-    nav_params = nav.NavParams.default(
-        n_samples=cfg.samples,
-        horizon=cfg.horizon,
-        n_path_points=n_path,
-        replan_ticks=REPLAN_TICKS,
-        footprint=missions.footprint(fleet.robot),
-    )
-    nav_params = eqx.tree_at(lambda p: p.controller.dt, nav_params, jnp.asarray(tick_dt, jnp.float32))
+    body = body_params(fleet, loop.odometry, 0.2, SCAN_RANGE)
+    nav_params = loop_nav_params(truth.grid.shape, cfg.samples, cfg.horizon, REPLAN_TICKS, tick_dt, body)
     values = cfg.slam_values()
     T_bc = np.asarray(fleet.T_base_camera)
     grid = slam.grid_spec_like(truth, values["max_laser_range"])
@@ -138,7 +128,7 @@ def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_d
         explore=nav_explore.ExploreParams.default(free_thresh=50.0),
         slam_spec=spec,
         slam=slam_params,
-        body=body_params(fleet, loop.odometry, 0.2, SCAN_RANGE),
+        body=body,
         yaw_rate_std=f32(values["leg_yaw_rate_std"]),
         spin_rate=f32(cfg.spin_rate),
         finish_time=f32(cfg.finish_time),

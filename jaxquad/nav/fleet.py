@@ -135,29 +135,37 @@ class NavResult:
     sim_s: float  # simulated time
 
 
+def loop_nav_params(
+    grid_shape: tuple[int, int], samples: int, horizon: int, replan_ticks: int, tick_dt: float, body: BodyParams
+) -> nav.NavParams:
+    """The navigation numbers of a closed loop on a map of `grid_shape` cells: path capacity for a winding route
+    across it (1.5 x its sides, one point every 4 cells), the robot's footprint from its body parameters, and
+    the control tick (s) as MPPI's model step."""
+    rows, cols = grid_shape
+    params = nav.NavParams.default(
+        n_samples=samples,
+        horizon=horizon,
+        n_path_points=max(32, math.ceil(1.5 * (rows + cols) / 4)),
+        replan_ticks=replan_ticks,
+        footprint=(body.footprint_center, body.footprint_half),
+    )
+    return eqx.tree_at(lambda p: p.controller.dt, params, jnp.asarray(tick_dt, jnp.float32))
+
+
 def _params(cfg: NavConfig, loop: cl.LoopConfig, fleet, occ, tick_dt: float) -> cl.LoopParams:
-    rows, cols = occ.grid.shape
-    # Path capacity: a winding route across the map (1.5 x its sides), one point every 4 cells.
-    n_path = max(32, math.ceil(1.5 * (rows + cols) / 4))
-    nav_params = nav.NavParams.default(
-        n_samples=cfg.samples,
-        horizon=cfg.horizon,
-        n_path_points=n_path,
-        replan_ticks=REPLAN_TICKS,
-        footprint=missions.footprint(fleet.robot),
-    )
-    nav_params = eqx.tree_at(
-        lambda p: (p.controller.dt, p.controller.goal_xy_tol, p.controller.goal_yaw_tol),
-        nav_params,
-        tuple(jnp.asarray(v, jnp.float32) for v in (tick_dt, cfg.arrive_xy, cfg.arrive_yaw)),
-    )
     lp = cfg.localize_params()
+    body = body_params(fleet, loop.odometry, lp.laser_min_range, lp.laser_max_range)
+    nav_params = eqx.tree_at(
+        lambda p: (p.controller.goal_xy_tol, p.controller.goal_yaw_tol),
+        loop_nav_params(occ.grid.shape, cfg.samples, cfg.horizon, REPLAN_TICKS, tick_dt, body),
+        tuple(jnp.asarray(v, jnp.float32) for v in (cfg.arrive_xy, cfg.arrive_yaw)),
+    )
     T_bc = np.asarray(fleet.T_base_camera)
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     return cl.LoopParams(
         nav=nav_params,
         amcl=lp.amcl(T_base_laser=(float(T_bc[0, 3]), float(T_bc[1, 3]), 0.0)),
-        body=body_params(fleet, loop.odometry, lp.laser_min_range, lp.laser_max_range),
+        body=body,
         success_xy=f32(SUCCESS_XY),
         success_yaw=f32(SUCCESS_YAW),
         lost_error=f32(0.5),
