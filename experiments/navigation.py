@@ -201,7 +201,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--json", default=None, help="write the rows as JSON here")
     args = p.parse_args(argv)
     if args.merge:
-        rows = merge(args.merge)
+        try:
+            rows = merge(args.merge)
+        except ValueError as e:
+            p.error(str(e))
     else:
         robots = args.robot or ["go2", "badger"]
         worlds = args.world or ["house", "warehouse"]

@@ -65,3 +65,9 @@ def test_merge_refuses_a_cell_twice_different_settings_and_non_results(tmp_path)
         navigation.merge([str(a), str(d)])
     with pytest.raises(ValueError, match="not a saved navigation result"):
         navigation.merge([str(tmp_path / "missing.json")])
+
+
+def test_merge_of_a_missing_file_is_a_one_line_usage_error(tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        navigation.main(["--merge", str(tmp_path / "missing.json")])
+    assert e.value.code == 2 and "missing.json: not a saved navigation result" in capsys.readouterr().err
