@@ -30,6 +30,8 @@ GOAL = 0.95  # coverage a run should reach
 
 
 def run_cell(args, robot: str, world: str, variant: str) -> dict:
+    import jax
+
     from jaxquad.explore import ExploreConfig, explore
     from jaxquad.explore.report import coverage_samples, summarize
 
@@ -44,6 +46,7 @@ def run_cell(args, robot: str, world: str, variant: str) -> dict:
         samples=args.samples,
         horizon=args.horizon,
         trace_robots=4,
+        devices=args.devices,
     )
     t0 = time.perf_counter()
     result = explore(cfg)
@@ -70,6 +73,7 @@ def run_cell(args, robot: str, world: str, variant: str) -> dict:
         "distance_m": summary["distance_m"],
         "slam_error_m": summary["slam_error_m"],
         "compile_s": result.compile_s,
+        "devices": args.devices or jax.local_device_count(),
         "robot_seconds_per_s": summary["timing"]["robot_seconds_per_s"],
     }
 
@@ -131,6 +135,9 @@ def main() -> int:
     p.add_argument("--samples", type=int, default=256, help="MPPI samples (default 256)")
     p.add_argument("--horizon", type=int, default=30, help="MPPI horizon in ticks (default 30)")
     p.add_argument("--every", type=float, default=5.0, help="coverage sampling period, s (default 5)")
+    p.add_argument(
+        "--devices", type=int, default=None, help="split each cell's robots over the first N devices (default all)"
+    )
     p.add_argument("--json", default=None, help="write the rows as JSON here (default: stdout only)")
     p.add_argument("--figures", default=None, help="folder for coverage_vs_time.png (default: none)")
     args = p.parse_args()

@@ -61,6 +61,7 @@ def run_cell(args, robot: str, world: str, label: str) -> dict:
             horizon=args.horizon,
             max_seconds=args.max_seconds,
             trace_robots=8,
+            devices=args.devices,
         )
         t0 = time.perf_counter()
 
@@ -102,6 +103,7 @@ def run_cell(args, robot: str, world: str, label: str) -> dict:
         "run_s": run_s,
         "robot_seconds_per_s": robot_s / run_s if run_s > 0 else None,
         "device": jax.devices()[0].device_kind,
+        "devices": args.devices or jax.local_device_count(),
         "settings": {
             k: getattr(args, k)
             for k in ("robots", "goals", "worlds", "seed", "style", "samples", "horizon", "particles", "max_seconds")
@@ -196,6 +198,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     )
     which.add_argument(
         "--merge", nargs="+", default=None, metavar="JSON", help="print the tables of saved rows (runs nothing)"
+    )
+    p.add_argument(
+        "--devices", type=int, default=None, help="split each fleet's robots over the first N devices (default all)"
     )
     p.add_argument("--out", default=None, help="folder for each run's summary.json and paths.png")
     p.add_argument("--json", default=None, help="write the rows as JSON here")

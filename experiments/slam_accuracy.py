@@ -2,7 +2,7 @@
 
     python experiments/slam_accuracy.py [--robot go2 --robot badger] [--world house --world warehouse]
         [--robots 2] [--seconds 10] [--style aggressive] [--contacts truth] [--scan-hz 10]
-        [--lo-constraints off velocity preintegrated] [--throughput 1 4096] [--json rows.json]
+        [--lo-constraints off velocity preintegrated] [--throughput 1 4096] [--devices 1 2] [--json rows.json]
 
 For each robot and world it simulates a fleet (`jaxquad.sim.rollout`, depth on, `--robots` robots in
 up to 4 distinct worlds), runs the estimator once (leg-inertial odometry with `--contacts`, the
@@ -13,7 +13,8 @@ pose at each scan and of the final (after the last optimization) trajectory; occ
 precision and recall of the final map against the true map (`jaxquad.metrics.map_scores`: recall
 counts every visible wall of the world, also those never in view); loop closures per robot; the
 SLAM's wall time. With --throughput B...: the real-time factor (scan time span / wall time, compile
-apart) of B robots' online SLAM in one jitted vmapped run (the fleet's robots repeated).
+apart) of B robots' online SLAM in one jitted vmapped run (the fleet's robots repeated), split over each
+device count of --devices in turn; robot-s per s = B x span / wall, the robots it keeps in real time.
 """
 
 from __future__ import annotations
@@ -83,7 +84,7 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list) -> dict:
     return {"x": x, "grid": grid, "values": values}
 
 
-def _throughput(cell: dict, batches, rows: list) -> None:
+def _throughput(cell: dict, batches, devices, rows: list) -> None:
     from jaxquad.slam import run_fleet, slam_config
 
     x, values = cell["x"], cell["values"]
@@ -94,14 +95,19 @@ def _throughput(cell: dict, batches, rows: list) -> None:
         xb = {
             k: (v if k in ("t", "bearings", "T_base_laser") else np.concatenate([v] * reps)[:b]) for k, v in x.items()
         }
-        t0 = time.perf_counter()
-        run_fleet(spec, params, xb)  # compiles
-        first = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        run_fleet(spec, params, xb)
-        wall = time.perf_counter() - t0
-        rows.append(f"| {b} | {len(x['t'])} | {span:.1f} | {first - wall:.1f} | {wall:.2f} | {span / wall:.1f} |")
-        print(rows[-1], file=sys.stderr)
+        for d in devices:
+            t0 = time.perf_counter()
+            run_fleet(spec, params, xb, devices=d)  # compiles
+            first = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            run_fleet(spec, params, xb, devices=d)
+            wall = time.perf_counter() - t0
+            n_dev = d or jax.device_count()
+            rows.append(
+                f"| {b} | {n_dev} | {len(x['t'])} | {span:.1f} | {first - wall:.1f} | {wall:.2f} | {span / wall:.2f} | "
+                f"{b * span / wall:,.0f} |"
+            )
+            print(rows[-1], file=sys.stderr)
 
 
 def main() -> None:
@@ -129,6 +135,13 @@ def main() -> None:
         help="constraint kinds (default: all three)",
     )
     p.add_argument("--throughput", type=int, nargs="*", default=[], help="robot counts for the speed table")
+    p.add_argument(
+        "--devices",
+        type=int,
+        nargs="+",
+        default=[None],
+        help="device counts the speed table's robots are split over, a row each (default: all devices)",
+    )
     p.add_argument("--json", default=None, help="also write every robot's report to this JSON file")
     args = p.parse_args()
     args.robot, args.world = args.robot or ["go2"], args.world or ["house"]
@@ -146,10 +159,10 @@ def main() -> None:
     print("\n".join(rows))
     if args.throughput:
         speed = [
-            "| robots | scans | scan span s | compile s | run s | real-time factor |",
-            "|---:|---:|---:|---:|---:|---:|",
+            "| robots | devices | scans | scan span s | compile s | run s | real-time factor | robot-s per s |",
+            "|---:|---:|---:|---:|---:|---:|---:|---:|",
         ]
-        _throughput(cell, args.throughput, speed)
+        _throughput(cell, args.throughput, args.devices, speed)
         print("\n" + "\n".join(speed))
     if args.json:
         from jaxquad.io import write_json

@@ -77,15 +77,19 @@ def progress_bar(desc: str, unit: str) -> Iterator[Callable[[int, int], None]]:
             bar.close()
 
 
-def add_devices_argument(parser, what: str = "robots") -> None:
-    """The shared `--devices N` option of commands whose batch is split over devices (`jaxquad.parallel`)."""
+def add_devices_argument(parser, what: str = "robots", processes: bool = True) -> None:
+    """The shared `--devices N` option of commands whose batch is split over devices (`jaxquad.parallel`);
+    `processes`: the command also runs over several processes."""
+    every = "all devices this run sees; in a multi-process run all devices of all processes"
+    if not processes:
+        every = "all devices of this process"
     parser.add_argument(
         "--devices",
         type=int,
         default=None,
         metavar="N",
-        help=f"split the {what} over the first N devices (default: all devices this run sees; in a multi-process "
-        "run all devices of all processes); results equal one device's up to float rounding",
+        help=f"split the {what} over the first N devices (default: {every}); results equal one device's up to float "
+        "rounding",
     )
 
 

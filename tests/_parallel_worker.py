@@ -2,11 +2,14 @@
 group (JAXQUAD_* variables) is set before JAX starts: `python _parallel_worker.py SCENARIO OUT.npz`.
 
 grid:  grid-search counts on 1 and on 2 devices (a grid size that is not a multiple of the chunk),
-       and a vmapped function with time-major output split over 2 devices.
+       a vmapped function with time-major output split over 2 devices, and a toy closed loop
+       (`jaxquad.nav.fleet_loop`: per-robot and shared inputs, random keys, the replan flag) of 3 robots
+       on 1 and on 2 devices.
 fleet: a 3-robot fleet (padding to 4 on 2 devices) simulated on 1 and on 2 devices, and the 1-device
        log estimated on 1 and on 2 devices.
-navigate: a 3-robot navigation closed loop (padding to 4 on 2 devices) for one 0.96 s chunk, on 1 and on 2
-       devices.
+explore: a 3-robot exploration closed loop (padding to 4) for one 0.96 s chunk, on 1 and on 2 devices.
+slam:  online SLAM of 3 robots (padding to 4) along drifting odometry in a NumPy-cast box world, on 1 and on
+       2 devices.
 multiprocess: one of two processes: the grid on the devices of both, and a time-major (T, N) array
        split over its robot axis gathered piece by piece; process 0 writes OUT.
 """
@@ -61,12 +64,48 @@ def grid(out: str) -> None:
     mesh = parallel.mesh(2)
     x = np.arange(20, dtype=np.float32).reshape(4, 5)  # 4 robots x 5 samples
     y = jax.jit(parallel.shard_batched(jax.vmap(jnp.cumsum, out_axes=1), mesh, (0,), 1))(parallel.place(x, mesh))
+    res |= _toy_loop()
     res |= {
         "time_major_in": x,
         "d2_time_major": np.asarray(y),
         "d2_shard_shapes": np.array([s.data.shape for s in y.addressable_shards]),
     }
     np.savez(out, **res)
+
+
+def _toy_loop() -> dict:
+    """state = qpos0 * scale + noise(key); each tick adds `shared`, halved on ticks without the replan flag."""
+    import equinox as eqx
+
+    from jaxquad import parallel
+    from jaxquad.nav.fleet_loop import loop_functions, place_robots
+
+    class Inputs(eqx.Module):
+        scale: jax.Array  # per robot
+        shared: jax.Array
+        replan: jax.Array
+
+    def init(params, inputs, qpos0, key):
+        return qpos0 * inputs.scale + params * jax.random.normal(key, qpos0.shape)
+
+    def tick(params, state, inputs):
+        state = state + inputs.shared * jnp.where(inputs.replan, 1.0, 0.5)
+        return state, state.sum()
+
+    axes = lambda inputs: Inputs(0, None, None)  # noqa: E731
+    inputs = Inputs(jnp.array([1.0, 2.0, 3.0]), jnp.array([0.1, -0.2]), jnp.asarray(True))
+    qpos0 = np.arange(6, dtype=np.float32).reshape(3, 2)
+    res = {}
+    for d in (1, 2):
+        mesh = parallel.mesh(d)
+        fleet_init, chunk = loop_functions(init, tick, axes, mesh)
+        params, placed, q, keys = place_robots(mesh, jnp.asarray(0.01), inputs, axes, qpos0, seed=5)
+        states = fleet_init(params, placed, q, keys)
+        res[f"toy_d{d}_init"] = np.asarray(states)[:3]
+        states, out = chunk(params, states, placed, n_ticks=6, replan_ticks=3)
+        res[f"toy_d{d}_final"], res[f"toy_d{d}_out"] = np.asarray(states)[:3], np.asarray(out)[:, :3]
+        res[f"toy_d{d}_shards"] = np.array([s.data.shape[0] for s in states.addressable_shards])
+    return res
 
 
 FLEET_KEYS = ("q", "acc", "gt_pose", "gt_force", "depth", "fallen")
@@ -113,20 +152,71 @@ def multiprocess(out: str) -> None:
         np.savez(out, **res)
 
 
-def navigate(out: str) -> None:
-    from jaxquad.nav.fleet import NavConfig
-    from jaxquad.nav.fleet import navigate as run
+def explore(out: str) -> None:
+    from jaxquad.explore import ExploreConfig
+    from jaxquad.explore import explore as run
 
     res = {}
     for d in (1, 2):
-        cfg = NavConfig(
-            n_robots=3, n_goals=1, particles=64, samples=16, horizon=5, chunk_ticks=10, max_seconds=0.5, devices=d
-        )
+        cfg = ExploreConfig(n_robots=3, seconds=0.96, samples=16, horizon=5, chunk_ticks=10, trace_robots=3, devices=d)
         r = run(cfg)
-        res |= {f"d{d}_{k}": np.asarray(getattr(r, k)) for k in ("outcome", "loc_error", "true_pose", "pose", "t")}
+        keys = ("outcome", "coverage", "error", "true_pose", "pose", "maps", "nodes", "distance", "t")
+        res |= {f"d{d}_{k}": np.asarray(getattr(r, k)) for k in keys}
+    np.savez(out, **res)
+
+
+def slam(out: str) -> None:
+    from _laser2d import box, cast
+
+    from jaxquad.kernels.scan_grid import MatchSpec, cells_for_range
+    from jaxquad.slam import SlamParams, SlamSpec, final_poses, grid_spec, run_fleet
+
+    world = np.concatenate([box(-4, -3, 4, 3), box(-1.0, -0.6, 1.0, 0.6), box(2.5, -3.0, 3.0, -2.2)])
+    bearings = np.linspace(-np.pi, np.pi, 90, endpoint=False)
+    S, dt = 40, 0.1
+    s = np.linspace(0.0, 1.0, S)
+    truth = np.stack([[-2.5 + 4.0 * s, -1.8 + 0.2 * r + 0 * s, 0.3 * s + 0.1 * r] for r in range(3)])
+    truth = truth.transpose(0, 2, 1)  # (3 robots, S, 3)
+    drift = np.array([1.04, 1.04, 1.0])
+    odom = truth[:, :1] + (truth - truth[:, :1]) * drift  # 4 % scale error on x and y
+    twist = np.gradient(truth, dt, axis=1)
+    x = {
+        "t": np.arange(S) * dt,
+        "odom": odom,
+        "ranges": np.stack([[cast(world, p, bearings, 5.0) for p in robot] for robot in truth]),
+        "bearings": bearings,
+        "T_base_laser": np.zeros(3),
+        "valid": np.ones((3, S), bool),
+        "lo_twist": twist,
+        "lo_twist_cov": np.broadcast_to(np.diag([0.01, 0.01, 4e-4]), (3, S, 3, 3)),
+        "lo_valid": np.ones((3, S), bool),
+    }
+    spec = SlamSpec(
+        grid=grid_spec((-5.0, -4.0, 5.0, 4.0), 0.1, 5.0),
+        nodes=24,
+        buffer=8,
+        match=MatchSpec(cells=cells_for_range(3.0, 0.01, 50)),
+        lo_constraints="preintegrated",
+    )
+    res = {}
+    for d in (1, 2):
+        state, outs, _ = run_fleet(spec, SlamParams(), x, devices=d)
+        res |= {
+            f"d{d}_final": final_poses(state, outs),
+            f"d{d}_online": np.asarray(outs.pose),
+            f"d{d}_n_nodes": np.asarray(state.n_nodes),
+            f"d{d}_log_odds": np.asarray(state.grid.log_odds),
+        }
+    res["truth"] = truth
     np.savez(out, **res)
 
 
 if __name__ == "__main__":
-    scenarios = {"grid": grid, "fleet": fleet, "navigate": navigate, "multiprocess": multiprocess}
+    scenarios = {
+        "grid": grid,
+        "fleet": fleet,
+        "explore": explore,
+        "slam": slam,
+        "multiprocess": multiprocess,
+    }
     scenarios[sys.argv[1]](*sys.argv[2:])

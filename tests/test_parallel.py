@@ -167,6 +167,19 @@ def test_grid_same_on_two_devices(grid_run):
     assert r["d2_shard_shapes"].tolist() == [[5, 2], [5, 2]]
 
 
+def test_toy_closed_loop_same_on_two_devices(grid_run):
+    r = np.load(grid_run)
+    qpos0 = np.arange(6.0).reshape(3, 2)
+    noise = r["toy_d1_init"] - qpos0 * np.array([1.0, 2.0, 3.0])[:, None]
+    assert 0 < np.abs(noise).max() < 0.05 and np.ptp(noise) > 0  # each robot its own key
+    # Ticks 0 and 3 of 6 replan: 1 + 0.5 + 0.5 + 1 + 0.5 + 0.5 = 4 times `shared`.
+    np.testing.assert_allclose(r["toy_d1_final"], r["toy_d1_init"] + 4 * np.array([0.1, -0.2]), atol=1e-5)
+    np.testing.assert_allclose(r["toy_d1_out"][-1], r["toy_d1_final"].sum(1), atol=1e-5)
+    for k in ("init", "final", "out"):
+        np.testing.assert_allclose(r[f"toy_d2_{k}"], r[f"toy_d1_{k}"], atol=1e-6, err_msg=k)
+    assert r["toy_d1_shards"].tolist() == [3] and r["toy_d2_shards"].tolist() == [2, 2]  # 3 robots padded to 4
+
+
 def test_grid_and_gather_on_two_processes(grid_run, tmp_path):
     out = tmp_path / "mp.npz"
     _two_processes("multiprocess", str(out), timeout=180)
@@ -201,10 +214,23 @@ def test_fleet_same_on_two_devices(fleet_run):
 
 
 @pytest.mark.slow
-def test_navigation_loop_same_on_two_devices(tmp_path):
-    out = tmp_path / "nav.npz"
-    _two_devices("navigate", str(out), timeout=900)
+def test_exploration_loop_same_on_two_devices(tmp_path):
+    """The closed loop of `explore` (estimator, online SLAM, frontiers, planner, MPPI over the simulator);
+    `navigate` runs its own loop through the same fleet functions (`jaxquad.nav.fleet_loop`)."""
+    out = tmp_path / "explore.npz"
+    _two_devices("explore", str(out), timeout=900)
     r = np.load(out)
     assert r["d1_true_pose"].shape == (10, 3, 3) and np.ptp(r["d1_true_pose"][:, :, :2], axis=0).max() > 0.01
+    assert (r["d1_nodes"] > 0).all() and (r["d1_maps"] >= 0).any() and (r["d1_distance"] > 0.05).all()
     for k in [f[3:] for f in r.files if f.startswith("d1_")]:
+        _close(r[f"d2_{k}"], r[f"d1_{k}"], k)
+
+
+def test_slam_same_on_two_devices(tmp_path):
+    out = tmp_path / "slam.npz"
+    _two_devices("slam", str(out), timeout=600)
+    r = np.load(out)
+    assert r["d1_final"].shape == (3, 40, 3) and (r["d1_n_nodes"] > 3).all() and np.abs(r["d1_log_odds"]).max() > 1
+    assert np.ptp(r["d1_final"][:, -1, 1]) > 0.3  # the robots' paths differ (0.2 m apart)
+    for k in ("final", "online", "n_nodes", "log_odds"):
         _close(r[f"d2_{k}"], r[f"d1_{k}"], k)

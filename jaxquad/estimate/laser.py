@@ -100,12 +100,14 @@ def laser_inputs(
     progress=None,
     odometry: str = "lo",
     vo_coupling: str = "guess+restart",
+    devices: int | None = None,
 ) -> dict:
     """Per robot (leading axis N) at the F depth frames: t (F,) s, odom (N, F, 3) x y yaw, ranges (N, F, W)
     m of the `scans` kind, bearings (W,) rad, T_base_laser (3,), valid (N, F), lo_twist (N, F, 3) planar
     leg-odometry twist, lo_twist_cov (N, F, 3, 3), lo_valid (N, F) and, with ground truth, gt (N, F, 3).
     odom: the leg-inertial odometry (`odometry="lo"`) or the depth odometry (`"vo"`, guided by the leg
-    odometry as `vo_coupling` says). `observer_params`: a contact-observer file (as `jaxquad estimate
+    odometry as `vo_coupling` says; the depth odometry runs on one device). `devices`: the estimator's robots
+    are split over that many devices (default all). `observer_params`: a contact-observer file (as `jaxquad estimate
     --params`). The log is checked first (depth, joints, what the contact source needs); then
     `progress(0, F)` says so."""
     from jaxquad.estimate.inputs import check_log
@@ -128,7 +130,7 @@ def laser_inputs(
     obs = load_observer_params(observer_params, len(robot.foot_names), contacts)
     if progress is not None:
         progress(0, len(log["depth_t"]))
-    _, _, est = estimate_log(log, contacts, obs, robot)
+    _, _, est = estimate_log(log, contacts, obs, robot, devices=devices)
     x = leg_laser_inputs(log, est, scans, band_height, range_min, range_max, yaw_rate_std)
     if odometry == "vo":
         x["odom"] = visual_odometry_2d(log, est, robot, vo_coupling)

@@ -17,6 +17,7 @@ from jaxquad.explore.report import SUMMARY_KIND
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from jaxquad.cli import add_devices_argument
     from jaxquad.explore.fleet import VARIANTS
 
     parser.add_argument("--robot", default="go2", choices=["go2", "badger"], help="robot model (default go2)")
@@ -56,6 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--every", type=float, default=5.0, help="coverage sampling period in summary.json, s (default 5)"
     )
     parser.add_argument("--plot-robots", type=int, default=4, help="robots drawn in maps.png (default 4)")
+    add_devices_argument(parser, processes=False)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -96,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
         slam_params=args.slam_params,
         map_range=args.map_range,
         trace_robots=max(args.plot_robots, 1),
+        devices=args.devices,
     )
     with progress_bar("explore", "sim s") as progress:
         result = explore(cfg, progress=progress)

@@ -25,12 +25,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxquad import slam
+from jaxquad import parallel, slam
 from jaxquad.explore import loop as xl
 from jaxquad.kernels.occupancy import occupancy_values
 from jaxquad.nav import explore as nav_explore
 from jaxquad.nav import missions
-from jaxquad.nav.fleet import body_params, keep_first, loop_nav_params
+from jaxquad.nav.fleet import body_params, loop_nav_params
+from jaxquad.nav.fleet_loop import keep_first, loop_functions, place_robots, start_qpos
 
 VARIANTS = {"full": ("leg", "stabilized", "preintegrated"), "baseline": ("visual", "baseline", "off")}
 REPLAN_TICKS = 10  # control ticks between two planning periods (0.96 s)
@@ -58,6 +59,7 @@ class ExploreConfig:
     band_height: int = 1  # scan band rows
     randomize: bool = True  # per-robot masses, friction, motors and noise levels
     trace_robots: int = 8  # robots whose paths are kept in the result
+    devices: int | None = None  # devices the robots are split over (`jaxquad.parallel.mesh`); None: all local ones
 
     def __post_init__(self):
         if self.variant not in VARIANTS:
@@ -137,42 +139,31 @@ def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_d
     )
 
 
-# (robot, fleet structure, loop configuration) -> jitted (init, chunk, finish).
+def _input_axes(fleet, inputs: xl.ExploreInputs):
+    """vmap axes of ExploreInputs: per-robot model fields and setup; the judge's mask and the flag shared."""
+    fields = lambda x: (x.model, x.setup, x.reachable, x.replan)  # noqa: E731
+    return eqx.tree_at(fields, inputs, (fleet.model_in_axes, 0, None, None))
+
+
+# (robot, fleet structure, loop configuration, mesh) -> jitted (init, chunk, finish).
 _FUNCTIONS: dict = {}
 
 
-def _compiled_functions(fleet, loop: xl.ExploreLoopConfig):
-    c = dataclasses.replace(fleet.config, seed=0, n_robots=1, n_worlds=1, style="calm", randomize=True)
-    key = (fleet.robot.path, c, loop)
+def _compiled_functions(fleet, loop: xl.ExploreLoopConfig, mesh):
+    c = dataclasses.replace(fleet.config, seed=0, n_robots=1, n_worlds=1, style="calm", randomize=True, devices=None)
+    key = (fleet.robot.path, c, loop, mesh)
     if key not in _FUNCTIONS:
         fns = xl.make_explore_loop(fleet, loop)
-
-        def axes(inputs):  # per-robot model fields and setup; the judge's mask and the flag shared
-            fields = lambda x: (x.model, x.setup, x.reachable, x.replan)  # noqa: E731
-            return eqx.tree_at(fields, inputs, (fleet.model_in_axes, 0, None, None))
-
-        def init(params, inputs, qpos0, keys):
-            return jax.vmap(fns.init, in_axes=(None, axes(inputs), 0, 0))(params, inputs, qpos0, keys)
-
-        def chunk(params, states, inputs, n_ticks: int, replan_ticks: int):
-            def body(s, i):
-                at_i = eqx.tree_at(lambda x: x.replan, inputs, i % replan_ticks == 0)
-                return jax.vmap(fns.tick, in_axes=(None, 0, axes(at_i)))(params, s, at_i)
-
-            return jax.lax.scan(body, states, jnp.arange(n_ticks))
 
         def finish(params, states):
             def one(s):
                 final = slam.finish(params.slam_spec, params.slam, s.slam)
                 return occupancy_values(final.grid), final.n_nodes, final.loops
 
-            return jax.vmap(one)(states)
+            return parallel.shard_batched(jax.vmap(one), mesh, (0,), 0)(states)
 
-        _FUNCTIONS[key] = (
-            jax.jit(init),
-            jax.jit(chunk, static_argnames=("n_ticks", "replan_ticks"), donate_argnums=(1,)),
-            jax.jit(finish),
-        )
+        init, chunk = loop_functions(fns.init, fns.tick, lambda inputs: _input_axes(fleet, inputs), mesh)
+        _FUNCTIONS[key] = (init, chunk, jax.jit(finish))
     return _FUNCTIONS[key]
 
 
@@ -183,6 +174,9 @@ def explore(cfg: ExploreConfig, starts: np.ndarray | None = None, progress=None)
     from jaxquad.sim.worlds import occupancy_map
 
     loop = cfg.loop_config()
+    mesh = parallel.mesh(cfg.devices)
+    if jax.process_count() > 1:
+        raise ValueError("explore runs in one process (its --devices split the robots over that process's devices)")
     fleet = build_fleet(
         FleetConfig(
             robot=cfg.robot,
@@ -206,16 +200,13 @@ def explore(cfg: ExploreConfig, starts: np.ndarray | None = None, progress=None)
     inputs = xl.ExploreInputs(
         model=fleet.model, setup=fleet.setup, reachable=jnp.asarray(reachable), replan=jnp.asarray(True)
     )
-    qpos0 = np.tile(fleet.robot.qpos_home, (cfg.n_robots, 1))
-    a = fleet.robot.base_qpos_adr
-    qpos0[:, a : a + 2] = starts[:, :2]
-    qpos0[:, a + 3 : a + 7] = np.stack(
-        [np.cos(starts[:, 2] / 2), 0 * starts[:, 2], 0 * starts[:, 2], np.sin(starts[:, 2] / 2)], 1
+    n = cfg.n_robots
+    init, chunk, finish = _compiled_functions(fleet, loop, mesh)
+    params, inputs, qpos0, keys = place_robots(
+        mesh, params, inputs, lambda x: _input_axes(fleet, x), start_qpos(fleet.robot, starts), cfg.seed
     )
-    init, chunk, finish = _compiled_functions(fleet, loop)
-    keys = jax.random.split(jax.random.key(cfg.seed), cfg.n_robots)
     t0 = time.perf_counter()
-    states = init(params, inputs, jnp.asarray(qpos0, jnp.float32), keys)
+    states = init(params, inputs, qpos0, keys)
     compiled = chunk.lower(params, states, inputs, n_ticks=cfg.chunk_ticks, replan_ticks=REPLAN_TICKS).compile()
     compile_s = time.perf_counter() - t0
     n_chunks = max(1, math.ceil(cfg.seconds / (cfg.chunk_ticks * tick_dt) - 1e-9))
@@ -225,31 +216,31 @@ def explore(cfg: ExploreConfig, starts: np.ndarray | None = None, progress=None)
     for k in range(n_chunks):
         t1 = time.perf_counter()
         states, out = compiled(params, states, inputs)
-        outs.append(keep_first(out, cfg.trace_robots, ("true_pose", "pose", "goal")))
-        ended = np.asarray(states.outcome) != xl.RUNNING
+        outs.append(keep_first(out, min(cfg.trace_robots, n), ("true_pose", "pose", "goal")))
+        ended = np.asarray(states.outcome)[:n] != xl.RUNNING
         run_s += time.perf_counter() - t1  # the outputs' copy to the host included
         if progress is not None:
             progress(round(min(cfg.seconds, (k + 1) * cfg.chunk_ticks * tick_dt), 1), cfg.seconds)
         if ended.all():
             break
-    maps, nodes, loops = jax.device_get(finish(params, states))
+    maps, nodes, loops = (np.asarray(a)[:n] for a in jax.device_get(finish(params, states)))
     trace = jax.tree.map(lambda *x: np.concatenate(x), *outs)
     return ExploreResult(
         config=cfg,
         world=world,
         truth=truth,
         reachable=reachable,
-        maps=np.asarray(maps),
+        maps=maps,
         starts=starts,
-        outcome=np.asarray(states.outcome),
-        end_t=np.asarray(states.end_t),
-        distance=np.asarray(states.distance),
-        nodes=np.asarray(nodes),
-        loops=np.asarray(loops),
+        outcome=np.asarray(states.outcome)[:n],
+        end_t=np.asarray(states.end_t)[:n],
+        distance=np.asarray(states.distance)[:n],
+        nodes=nodes,
+        loops=loops,
         t=trace.t[:, 0],
-        coverage=trace.coverage,
-        error=trace.error,
-        active=trace.active,
+        coverage=trace.coverage[:, :n],
+        error=trace.error[:, :n],
+        active=trace.active[:, :n],
         true_pose=trace.true_pose,
         pose=trace.pose,
         compile_s=compile_s,

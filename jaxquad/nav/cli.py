@@ -90,7 +90,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="stop after this much simulated time, s (default: when every run has ended)",
     )
     parser.add_argument("--plot-robots", type=int, default=8, help="robots drawn in paths.png (default 8)")
-    add_devices_argument(parser)
+    add_devices_argument(parser, processes=False)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -32,6 +32,7 @@ from jaxquad.nav import closed_loop as cl
 from jaxquad.nav import missions
 from jaxquad.nav import navigate as nav
 from jaxquad.nav.body import BodyParams
+from jaxquad.nav.fleet_loop import keep_first, loop_functions, place_robots, start_qpos
 
 VARIANTS = {"full": ("leg", "stabilized"), "baseline": ("visual", "baseline")}
 AMCL_FILE = Path(__file__).with_name("amcl.yaml")
@@ -208,27 +209,7 @@ def _compiled_functions(fleet, loop: cl.LoopConfig, mesh):
     key = (fleet.robot.path, c, loop, mesh)
     if key not in _FUNCTIONS:
         fns = cl.make_loop(fleet, loop)
-
-        def init(params, inputs, qpos0, keys):
-            ax = (None, _input_axes(fleet, inputs), 0, 0)
-            return parallel.shard_batched(jax.vmap(fns.init, in_axes=ax), mesh, ax, 0)(params, inputs, qpos0, keys)
-
-        def chunk(params, states, inputs, n_ticks: int, replan_ticks: int):
-            def run(params, states, inputs):
-                def body(s, i):
-                    at_i = eqx.tree_at(lambda x: x.replan, inputs, i % replan_ticks == 0)
-                    return jax.vmap(fns.tick, in_axes=(None, 0, _input_axes(fleet, at_i)))(params, s, at_i)
-
-                return jax.lax.scan(body, states, jnp.arange(n_ticks))
-
-            # Robots split over the devices: states at axis 0, the time-major outputs at axis 1.
-            ax = (None, 0, _input_axes(fleet, inputs))
-            return parallel.shard_batched(run, mesh, ax, (0, 1))(params, states, inputs)
-
-        _FUNCTIONS[key] = (
-            jax.jit(init),
-            jax.jit(chunk, static_argnames=("n_ticks", "replan_ticks"), donate_argnums=(1,)),
-        )
+        _FUNCTIONS[key] = loop_functions(fns.init, fns.tick, lambda inputs: _input_axes(fleet, inputs), mesh)
     return _FUNCTIONS[key]
 
 
@@ -278,21 +259,11 @@ def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray
         model=fleet.model, setup=fleet.setup, nav_map=nav_map, goal_ids=jnp.asarray(goal_ids), replan=jnp.asarray(True)
     )
 
-    qpos0 = np.tile(fleet.robot.qpos_home, (cfg.n_robots, 1))
-    a = fleet.robot.base_qpos_adr
-    qpos0[:, a : a + 2] = starts[:, :2]
-    qpos0[:, a + 3 : a + 7] = np.stack(
-        [np.cos(starts[:, 2] / 2), 0 * starts[:, 2], 0 * starts[:, 2], np.sin(starts[:, 2] / 2)], 1
-    )
-    n, n_batch = cfg.n_robots, parallel.padded_size(cfg.n_robots, mesh)
+    n = cfg.n_robots
     init, chunk = _compiled_functions(fleet, loop, mesh)
-    keys = jax.random.split(jax.random.key(cfg.seed), n)
-    # Robots past n (filling the last device) are copies of the last robot, computed and dropped.
-    ax = (_input_axes(fleet, inputs), 0, 0)
-    inputs, qpos0, keys = parallel.place(
-        parallel.pad((inputs, jnp.asarray(qpos0, jnp.float32), keys), n_batch, ax), mesh, ax
+    params, inputs, qpos0, keys = place_robots(
+        mesh, params, inputs, lambda x: _input_axes(fleet, x), start_qpos(fleet.robot, starts), cfg.seed
     )
-    params = parallel.place(params, mesh, None)
     t0 = time.perf_counter()
     states = init(params, inputs, qpos0, keys)
     compiled = chunk.lower(
@@ -340,9 +311,3 @@ def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray
         run_s=run_s,
         sim_s=float(trace.t[-1, 0]),
     )
-
-
-def keep_first(out, n_trace: int, fields: tuple[str, ...]):
-    """A chunk's outputs (a dataclass of time-major (T, N, ...) arrays) on the host, with `fields` kept for
-    the first `n_trace` robots only (sliced on the device: only what is kept is copied)."""
-    return jax.device_get(dataclasses.replace(out, **{f: getattr(out, f)[:, :n_trace] for f in fields}))

@@ -20,6 +20,8 @@ FORMATS = ("auto", "robot", "carmen", "laser-npz")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from jaxquad.cli import add_devices_argument
+
     parser.add_argument("input", help="robot log (.npz), CARMEN log (text, .gz too) or laser log (.npz)")
     parser.add_argument("--out", required=True, help="output folder (created; an earlier SLAM output is replaced)")
     parser.add_argument(
@@ -87,6 +89,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=180.0,
         help="CARMEN FLASER lines: field of view of the beams (deg, default 180)",
     )
+    add_devices_argument(parser, "robots (the leg-odometry estimator's and the SLAM's)")
 
 
 def detect_format(path: Path) -> str:
@@ -173,6 +176,7 @@ def _load(args, path: Path, fmt: str, values: dict, progress=None):
         progress,
         args.odometry,
         args.vo_leg_odometry,
+        args.devices,
     )
     n = x["odom"].shape[0]
     fleet = "fallen" in log
@@ -185,6 +189,7 @@ def _load(args, path: Path, fmt: str, values: dict, progress=None):
 
 
 def run(args: argparse.Namespace) -> int:
+    from jaxquad import parallel
     from jaxquad.cli import progress_bar
     from jaxquad.io import atomic_dir, check_output_dir, to_json, write_json
     from jaxquad.slam import report
@@ -205,7 +210,9 @@ def run(args: argparse.Namespace) -> int:
         x, names, true_maps, lo_constraints = _load(args, path, fmt, values, progress)
         grid = map_grid(x, values["resolution"], values["max_laser_range"])
         spec, params = slam_config(values, grid, lo_constraints, x["T_base_laser"])
-        state, out, _ = run_fleet(spec, params, x, progress)
+        state, out, _ = run_fleet(spec, params, x, progress, args.devices)
+    if not parallel.is_main():  # every process ran the same SLAM and holds every robot's results
+        return 0
     final = final_poses(state, out)
     t = np.asarray(x["t"], np.float64)
     summary = {

@@ -4,7 +4,9 @@ Inputs are a dict of arrays at the scans (leading robot axis N), as `jaxquad.est
 gives for a robot log and `laser_log_inputs` for a 2D laser log: t (S,) s, odom (N, S, 3), ranges
 (N, S, B) m, bearings (B,) rad, T_base_laser (3,), valid (N, S), lo_twist (N, S, 3), lo_twist_cov
 (N, S, 3, 3), lo_valid (N, S), and optionally gt (N, S, 3). The scans run through `online.step` in
-chunks of one jitted `lax.scan`, `vmap`ped over the robots.
+chunks of one jitted `lax.scan`, `vmap`ped over the robots, which are split over the devices
+(`jaxquad.parallel`; in a multi-process run every process passes the same inputs and gets every robot's
+results).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxquad import parallel
 from jaxquad.io.carmen import LaserLog
 from jaxquad.kernels.occupancy import GridSpec
 from jaxquad.slam import online
@@ -89,37 +92,46 @@ def _inputs(x: dict, start: int, stop: int, size: int) -> online.SlamInputs:
 
 
 @functools.cache
-def _compiled(spec: online.SlamSpec):
-    """The jitted fleet functions of one spec (cached: a spec compiles once per process)."""
+def _compiled(spec: online.SlamSpec, mesh):
+    """The jitted fleet functions of one spec on one device mesh (cached: compiled once per process)."""
 
     def one(params, state, inputs):
         return jax.lax.scan(lambda s, i: online.step(spec, params, s, i), state, inputs)
 
     def init(params, bearings, n: int):
-        return jax.vmap(lambda _: online.init(spec, params, bearings))(jnp.arange(n))
+        fn = lambda params, bearings: jax.vmap(lambda _: online.init(spec, params, bearings))(jnp.arange(n))  # noqa: E731
+        return parallel.shard_batched(fn, mesh, (None, None), 0)(params, bearings)
 
-    chunk = jax.jit(jax.vmap(one, in_axes=(None, 0, 0)))
-    finish = jax.jit(jax.vmap(lambda params, s: online.finish(spec, params, s), in_axes=(None, 0)))
-    return jax.jit(init, static_argnums=2), chunk, finish
+    chunk = parallel.shard_batched(jax.vmap(one, in_axes=(None, 0, 0)), mesh, (None, 0, 0), 0)
+    finish = jax.vmap(lambda params, s: online.finish(spec, params, s), in_axes=(None, 0))
+    finish = parallel.shard_batched(finish, mesh, (None, 0), 0)
+    return jax.jit(init, static_argnums=2), jax.jit(chunk), jax.jit(finish)
 
 
-def run_fleet(spec: online.SlamSpec, params: online.SlamParams, x: dict, progress=None):
+def run_fleet(spec: online.SlamSpec, params: online.SlamParams, x: dict, progress=None, devices: int | None = None):
     """Online SLAM of every robot over all scans, then `finish`. Returns (final states, per-scan
-    outputs (N, S, ...), the states before `finish`) as NumPy pytrees. progress(done, total) per chunk."""
+    outputs (N, S, ...), the states before `finish`) as NumPy pytrees. progress(done, total) per chunk.
+    The robots are split over `devices` devices (default all), padded to a multiple of them with
+    copies of the last robot."""
     n, S = x["odom"].shape[:2]
-    init, chunk, finish = _compiled(spec)
-    states = init(params, jnp.asarray(x["bearings"], jnp.float32), n)
+    mesh = parallel.mesh(devices)
+    n_batch = parallel.padded_size(n, mesh)
+    init, chunk, finish = _compiled(spec, mesh)
+    params = parallel.place(params, mesh, None)
+    states = init(params, parallel.place(jnp.asarray(x["bearings"], jnp.float32), mesh, None), n_batch)
     outs = []
     for start in range(0, S, CHUNK):
         stop = min(start + CHUNK, S)
-        states, out = chunk(params, states, _inputs(x, start, stop, CHUNK))
-        outs.append(jax.tree.map(lambda a, n=stop - start: np.asarray(a)[:, :n], out))
+        inputs = parallel.place(parallel.pad(_inputs(x, start, stop, CHUNK), n_batch), mesh)
+        states, out = chunk(params, states, inputs)
+        outs.append(jax.tree.map(lambda a, k=stop - start: a[:n, :k], parallel.gather(out)))
         if progress is not None:
             progress(stop, S)
-    online_states = jax.tree.map(np.asarray, states)
-    final = finish(params, states)
+    online_states = parallel.gather(states)
+    final = parallel.gather(finish(params, states))
+    first = lambda tree: jax.tree.map(lambda a: np.asarray(a)[:n], tree)  # noqa: E731
     out = jax.tree.map(lambda *a: np.concatenate(a, 1), *outs)
-    return jax.tree.map(np.asarray, final), out, online_states
+    return first(final), out, first(online_states)
 
 
 _scan_poses = jax.jit(jax.vmap(online.scan_poses))
