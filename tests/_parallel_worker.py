@@ -8,10 +8,8 @@ grid:  grid-search counts on 1 and on 2 devices (a grid size that is not a multi
 fleet: a 3-robot fleet (padding to 4 on 2 devices) simulated on 1 and on 2 devices, and the 1-device
        log estimated on 1 and on 2 devices.
 explore: a 3-robot exploration closed loop (padding to 4) for one 0.96 s chunk, on 1 and on 2 devices.
-slam:  online SLAM of 3 robots (padding to 4) along drifting odometry in a NumPy-cast box world, on 1 and on
-       2 devices.
-multiprocess: one of two processes: the grid on the devices of both, and a time-major (T, N) array
-       split over its robot axis gathered piece by piece; process 0 writes OUT.
+multiprocess: one of two processes: the grid and the SLAM on the devices of both, and a time-major (T, N)
+       array split over its robot axis gathered piece by piece; process 0 writes OUT.
 """
 
 from __future__ import annotations
@@ -143,6 +141,7 @@ def multiprocess(out: str) -> None:
     parallel.initialize()
     assert jax.process_count() == 2 and jax.device_count() == 2, (jax.process_count(), jax.device_count())
     res = {f"grid_{k}": v for k, v in _counts(None).items()}
+    res |= {f"slam_{k}": v for k, v in slam_run(None).items()}
     mesh = parallel.mesh()
     x = np.arange(7 * 4 * 3, dtype=np.float32).reshape(7, 4, 3)  # (T, N, 3), N split over the processes
     parallel.GATHER_PIECE_BYTES = 100  # several pieces along T
@@ -165,7 +164,9 @@ def explore(out: str) -> None:
     np.savez(out, **res)
 
 
-def slam(out: str) -> None:
+def slam_run(devices) -> dict:
+    """Online SLAM of 3 robots (padded to 4 on 2 devices) along drifting odometry in a NumPy-cast box world
+    (also run on this process's one device by the tests, as the reference)."""
     from _laser2d import box, cast
 
     from jaxquad.kernels.scan_grid import MatchSpec, cells_for_range
@@ -198,17 +199,13 @@ def slam(out: str) -> None:
         match=MatchSpec(cells=cells_for_range(3.0, 0.01, 50)),
         lo_constraints="preintegrated",
     )
-    res = {}
-    for d in (1, 2):
-        state, outs, _ = run_fleet(spec, SlamParams(), x, devices=d)
-        res |= {
-            f"d{d}_final": final_poses(state, outs),
-            f"d{d}_online": np.asarray(outs.pose),
-            f"d{d}_n_nodes": np.asarray(state.n_nodes),
-            f"d{d}_log_odds": np.asarray(state.grid.log_odds),
-        }
-    res["truth"] = truth
-    np.savez(out, **res)
+    state, outs, _ = run_fleet(spec, SlamParams(), x, devices=devices)
+    return {
+        "final": final_poses(state, outs),
+        "online": np.asarray(outs.pose),
+        "n_nodes": np.asarray(state.n_nodes),
+        "log_odds": np.asarray(state.grid.log_odds),
+    }
 
 
 if __name__ == "__main__":
@@ -216,7 +213,6 @@ if __name__ == "__main__":
         "grid": grid,
         "fleet": fleet,
         "explore": explore,
-        "slam": slam,
         "multiprocess": multiprocess,
     }
     scenarios[sys.argv[1]](*sys.argv[2:])
