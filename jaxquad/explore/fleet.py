@@ -30,11 +30,10 @@ from jaxquad.explore import loop as xl
 from jaxquad.kernels.occupancy import occupancy_values
 from jaxquad.nav import explore as nav_explore
 from jaxquad.nav import missions
-from jaxquad.nav.fleet import body_params, loop_nav_params
+from jaxquad.nav.fleet import REPLAN_TICKS, body_params, loop_nav_params
 from jaxquad.nav.fleet_loop import keep_first, loop_functions, place_robots, start_qpos
 
 VARIANTS = {"full": ("leg", "stabilized", "preintegrated"), "baseline": ("visual", "baseline", "off")}
-REPLAN_TICKS = 10  # control ticks between two planning periods (0.96 s)
 SCAN_RANGE = 8.0  # m, the scans' range limit (the depth camera's); scan matching reads up to match_max_range
 
 
