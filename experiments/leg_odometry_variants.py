@@ -4,11 +4,15 @@ Runs the estimation pipeline over each log for every variant:
   point     point feet, plain least squares, integrated height (the model before these corrections)
   rolling   contact points of the rolling feet
   robust    + Huber reweighting of the stance feet
-  floor     + base height from the floor under the stance feet (every correction: the default)
+  floor     + base height from the floor under the stance feet
+  prior     + the feet also weighed against the previous sample's velocity (every correction: the default)
 and prints one Markdown row per (log, contacts, variant) of means over the robots that did not fall:
 segment drift (`drift_pct`: KITTI t_rel over 2, 5 and 10 m segments), end-point drift in % of the
-horizontal distance, path-length ratio (estimated over true horizontal
-path), segment drift (RMSE of the relative translation error over 5 m segments, evo's RPE, in % of
+horizontal distance, path-length ratio (estimated over true horizontal path, both sampled every 1 s:
+`path_ratio`, the scale; every sample: `path_ratio_raw`, lengthened by the per-sample velocity noise,
+see `jaxquad.estimate.scores.path_ratio`), the mean forward-velocity error in % of the mean forward
+speed (`fwd_bias_pct`, base x, observed samples), segment drift (RMSE of the relative translation
+error over 5 m segments, evo's RPE, in % of
 5 m), ATE (m, SE(3)-aligned), |height error| at the end (m), and the NEES of the twist's linear
 velocity against the true base velocity (finite differences of gt_pose, base frame; its expected
 value is 3 for a consistent covariance), with the fraction of samples inside the 95% chi-square(3)
@@ -28,10 +32,11 @@ import sys
 import numpy as np
 
 VARIANTS = {
-    "point": dict(rolling=False, robust="none", floor=False),
-    "rolling": dict(rolling=True, robust="none", floor=False),
-    "robust": dict(rolling=True, robust="huber", floor=False),
-    "floor": dict(rolling=True, robust="huber", floor=True),
+    "point": dict(rolling=False, robust="none", robust_prior=False, floor=False),
+    "rolling": dict(rolling=True, robust="none", robust_prior=False, floor=False),
+    "robust": dict(rolling=True, robust="huber", robust_prior=False, floor=False),
+    "floor": dict(rolling=True, robust="huber", robust_prior=False, floor=True),
+    "prior": dict(rolling=True, robust="huber", robust_prior=True, floor=True),
 }
 _CHI2_3_95 = 7.815
 
@@ -47,13 +52,12 @@ def _true_v_base(gt_pose: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 def score_robot(t, est: dict, gt_pose: np.ndarray, valid: np.ndarray) -> dict:
     from jaxquad.estimate import scores
-    from jaxquad.estimate.run import _trajectory_metrics
+    from jaxquad.estimate.run import trajectory_metrics
 
     m = valid
     p_est, p_true = est["p_world_base"][m], gt_pose[m, :3]
-    path = lambda p: np.linalg.norm(np.diff(p[:, :2], axis=0), axis=1).sum()  # noqa: E731
     drift = scores.odometry_scores(p_est, est["q_world_base"][m], gt_pose[m])
-    traj = _trajectory_metrics(t, est, gt_pose, m)
+    traj = trajectory_metrics(t, est, gt_pose, m)
     ate = traj.get("ate", {}).get("rmse", np.nan)
     seg = traj.get("rpe_5m", {}).get("rmse", np.nan)  # 5 m segments (NaN on walks shorter than 10 m)
     # NEES over observed samples away from the ends (central differences there are one-sided).
@@ -62,10 +66,12 @@ def score_robot(t, est: dict, gt_pose: np.ndarray, valid: np.ndarray) -> dict:
     obs[:5] = obs[-5:] = False
     cov = est["cov_v_base"][obs]
     nees = np.einsum("ti,tij,tj->t", err[obs], np.linalg.inv(cov), err[obs])
+    v_fwd = _true_v_base(gt_pose, t)[obs, 0]
     return {
         "drift_pct": drift["drift_pct"]["mean"],  # segments of 2, 5 and 10 m
         "endpoint_drift_pct": drift["endpoint_drift_horizontal_pct"],
-        "path_ratio": float(path(p_est) / max(path(p_true), 1e-9)),
+        **scores.path_ratio(t[m], p_est, p_true),
+        "fwd_bias_pct": float(100.0 * err[obs, 0].mean() / v_fwd.mean()),
         "ate_m": float(ate),
         "seg5m_pct": float(100.0 * seg / 5.0),
         "height_err_end_m": float(abs(p_est[-1, 2] - p_true[-1, 2])),
@@ -146,6 +152,8 @@ def main(argv=None) -> int:
         "endpoint_drift_pct",
         "seg5m_pct",
         "path_ratio",
+        "path_ratio_raw",
+        "fwd_bias_pct",
         "ate_m",
         "height_err_end_m",
         "nees_mean",

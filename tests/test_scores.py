@@ -209,3 +209,28 @@ def test_odometry_scores_perfect_and_too_short():
     assert short["drift_pct"]["n_segments"] == 0 and np.isnan(short["drift_pct"]["mean"])
     text = to_json(short)
     assert json.loads(text)["drift_pct"]["mean"] is None  # strict JSON: NaN written as null
+
+
+def test_path_ratio_raw_is_lengthened_by_white_velocity_noise_and_windowed_is_not():
+    from scipy.stats import rice
+
+    # A straight walk at v along x sampled every dt; the estimate integrates v plus white noise of
+    # standard deviation sigma per axis. Each raw step's length is Rice(v / sigma, scale sigma) dt,
+    # so the raw ratio tends to rice.mean / v (> 1: about 1 + sigma^2 / (2 v^2)); a 1 s window holds
+    # 250 samples, its displacement noise sigma dt sqrt(250) is 0.3 % of v * 1 s: ratio 1.
+    rng = np.random.default_rng(5)
+    v, sigma, dt, n = 0.5, 0.1, 0.004, 50_000
+    t = dt * np.arange(n)
+    true = np.stack([v * t, np.zeros(n), np.full(n, 0.3)], 1)
+    step = np.column_stack([np.full(n - 1, v), np.zeros(n - 1)]) + sigma * rng.standard_normal((n - 1, 2))
+    est = true.copy()
+    est[1:, :2] = np.cumsum(step * dt, 0)
+    r = scores.path_ratio(t, est, true)
+    np.testing.assert_allclose(r["path_ratio_raw"], rice.mean(v / sigma, scale=sigma) / v, rtol=2e-3)
+    assert r["path_ratio_raw"] > 1.015
+    np.testing.assert_allclose(r["path_ratio"], 1.0, atol=2e-3)
+    # A 2 % scale error shows at both samplings; no valid sample gives NaN.
+    scaled = true.copy()
+    scaled[:, :2] *= 1.02
+    np.testing.assert_allclose(scores.path_ratio(t, scaled, true)["path_ratio"], 1.02, rtol=1e-9)
+    assert np.isnan(scores.path_ratio(t, est, true, np.zeros(n, bool))["path_ratio"])

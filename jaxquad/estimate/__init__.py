@@ -26,6 +26,7 @@ from jaxquad.estimate.scores import (
     force_rmse,
     odometry_drift,
     odometry_scores,
+    path_ratio,
     z_error,
 )
 from jaxquad.estimate.tune import (
@@ -74,7 +75,7 @@ __all__ = [
     "full_state",
     "robot_inputs",
 ]
-__all__ += ["aggregate_delays", "fleet_mean", "odometry_scores", "z_error"]
+__all__ += ["aggregate_delays", "fleet_mean", "odometry_scores", "path_ratio", "z_error"]
 __all__ += ["PipelineSample", "PipelineState", "pipeline_init", "pipeline_step"]
 __all__ += [
     "ContactTruth",

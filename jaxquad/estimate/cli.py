@@ -46,6 +46,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="robust loss over the stance feet against slipping feet (default huber)",
     )
     parser.add_argument(
+        "--no-robust-prior",
+        action="store_true",
+        help="weigh the stance feet against the current solve only, not also against the previous sample's "
+        "velocity, which picks out feet sliding at touchdown and lift-off (default: both; no effect with "
+        "--robust none)",
+    )
+    parser.add_argument(
         "--no-floor",
         action="store_true",
         help="integrate the base height instead of fusing it with the floor under the stance feet (default: fuse)",
@@ -71,7 +78,12 @@ def run(args: argparse.Namespace) -> int:
     log = load_log(args.log)
     if args.params is not None:
         read_observer_params(args.params)
-    odometry = dict(rolling=args.feet == "rolling", robust=args.robust, floor=not args.no_floor)
+    odometry = dict(
+        rolling=args.feet == "rolling",
+        robust=args.robust,
+        robust_prior=not args.no_robust_prior,
+        floor=not args.no_floor,
+    )
     with progress_bar("estimate", "robot") as progress:
         summary = run_estimate(
             log,

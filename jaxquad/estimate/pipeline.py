@@ -11,7 +11,8 @@ Per sample k (dt = t_k - t_{k-1}):
      forward kinematics and v_base_foot = J(q) qd), moved to the contact points of the round feet
      rolling on the floor (kernels.rolling_contact, `PipelineConfig.rolling`);
   5. the twist least squares on the stance feet and the gyro, reweighted against slipping feet
-     (kernels.robust_body_twist, `PipelineConfig.robust`), with its covariance and slip flags;
+     (kernels.robust_body_twist, `PipelineConfig.robust`; each foot also against the previous
+     sample's velocity, `robust_prior`), with its covariance and slip flags;
   6. the pose: the twist of sample k-1 integrated over dt on SE(3), orientation from step 2, height
      fused with the floor under the stance feet (kernels.floor, `PipelineConfig.floor`).
 
@@ -104,11 +105,13 @@ class PipelineConfig:
     # observer tau_bar with the model's joint damping and friction (`dynamics.passive_forces`).
     observer_passive: bool = True
     # leg odometry: contact points of round feet rolling on the floor (radius from the model);
-    # robust loss over stance feet ("none", "huber", "cauchy") with `robust_iters` reweightings;
+    # robust loss over stance feet ("none", "huber", "cauchy") with `robust_iters` reweightings,
+    # against the previous sample's twist too (`robust_prior`: feet sliding at touchdown or lift-off);
     # base height from the floor under the stance feet (flat ground).
     rolling: bool = True
     robust: str = "huber"
     robust_iters: int = 3
+    robust_prior: bool = True
     floor: bool = True
 
     def __post_init__(self):
@@ -347,6 +350,7 @@ def pipeline_step(
         params.prior_dof,
         n_iter=config.robust_iters if config.robust != "none" else 0,
         loss="huber" if config.robust == "none" else config.robust,
+        v_prior=c.v_last if config.robust_prior else None,
     )
     tw = rob.twist
     tw_ok = tw.valid & tw.linear_observed

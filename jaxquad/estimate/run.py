@@ -73,7 +73,7 @@ def estimate_log(
 ):
     """Run the pipeline over a log (a dict, a loaded `.npz` or a `jaxquad.sim.FleetLog`); returns
     (robot, config, Estimate as NumPy with a leading robot axis). odometry: leg-odometry choices of
-    `PipelineConfig` (rolling, robust, robust_iters, floor) to override; devices: how many devices
+    `PipelineConfig` (rolling, robust, robust_iters, robust_prior, floor) to override; devices: how many devices
     the robots are split over (default all)."""
     from jaxquad import parallel
     from jaxquad.estimate import pipeline

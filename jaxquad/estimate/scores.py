@@ -5,7 +5,8 @@ Contacts: precision, recall and F1 of the per-sample contact flags; touchdown an
 detection delays (ms) by matching every true edge with the nearest estimated edge of the same
 kind. Forces: RMSE of the vertical force (N). Leg odometry (`odometry_scores`): KITTI segment
 drift (% and deg/m over 2/5/10 m of true path, `jaxquad.metrics.segment_drift`), the end-point
-drift (`odometry_drift`) and the vertical error. Every function takes an optional per-sample
+drift (`odometry_drift`) and the vertical error; the path-length ratio at a resolution that the
+per-sample velocity noise does not lengthen (`path_ratio`). Every function takes an optional per-sample
 `valid` mask; samples outside it are ignored.
 
 A figure with nothing to average (no matched edge, no sample, no segment, no distance) is NaN,
@@ -215,6 +216,33 @@ def odometry_drift(p_est, p_true, valid=None) -> dict:
         "endpoint_drift_3d_pct": 100.0 * _nan_ratio(np.linalg.norm(err), dist3),
         "distance_m": dist3,
         "horizontal_distance_m": dist2,
+    }
+
+
+def path_ratio(t, p_est, p_true, valid=None, window_s: float = 1.0) -> dict:
+    """Horizontal path length of the estimate over the truth's (T, 3) at two samplings.
+
+    path_ratio: both trajectories taken every `window_s` seconds (the first valid sample at or after
+    each multiple, and the last), the scale of the estimate. path_ratio_raw: every sample. A
+    per-sample velocity error e that averages out within a window adds length without moving the
+    robot (E|v + e| > |v|: about sigma^2 / (2 |v|^2) of the path for a cross-track error of standard
+    deviation sigma), so the raw ratio of a densely sampled, unbiased estimate exceeds 1. NaN without
+    a true distance.
+    """
+    t = np.asarray(t, float)
+    est = np.asarray(p_est, float)
+    true = np.asarray(p_true, float)
+    m = _mask(valid, est.shape[0])
+    t, est, true = t[m], est[m, :2], true[m, :2]
+    length = lambda p: float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())  # noqa: E731
+    if t.size < 2:
+        return {"path_ratio": float("nan"), "path_ratio_raw": float("nan")}
+    k = np.floor((t - t[0]) / window_s)
+    pick = np.flatnonzero(np.diff(k, prepend=-1.0) > 0)
+    pick = np.append(pick, t.size - 1) if pick[-1] != t.size - 1 else pick
+    return {
+        "path_ratio": _nan_ratio(length(est[pick]), length(true[pick])),
+        "path_ratio_raw": _nan_ratio(length(est), length(true)),
     }
 
 
