@@ -37,8 +37,14 @@ With a constraint the new node's pose is the optimum of the match edge (Cauchy-r
 `solver.robust_width` in chi-square units) and the leg-odometry edge, the last node held: a scan
 that matches far from where the legs say the robot went is overruled instead of yanking the path.
 
-Then the loop-closure search (`kernels.loop_closure`) runs for the new node; an accepted closure adds
-its edge and the whole graph is optimized (`kernels.posegraph`, node 0 fixed). The occupancy map
+Then the loop-closure search (`kernels.loop_closure`) runs for the new node. A candidate that passes its
+response and ambiguity tests must also agree with the graph: its innovation (the measured pose of node j
+in node i's frame against the graph's) has a chi-square, with the covariance of the graph's chain from i
+to j (each node's link and leg-odometry information, compounded) plus the match's, of at most
+`loop_max_chi2`. A narrow depth-camera scan (~87 deg) that sees one wall or a room like another can
+match confidently metres away from where the robot is; without the test that one edge, weighted by
+its response spread, drags the whole graph. An accepted closure adds its edge and the whole graph is
+optimized (`kernels.posegraph`, node 0 fixed). The occupancy map
 takes every node's scan at its node's pose; after an optimization it is redrawn from all nodes
 (`SlamSpec.refresh_map`; a fleet may clear that and call `refresh_map` itself).
 """
@@ -103,6 +109,7 @@ class SlamParams(eqx.Module):
     velocity_cov: Float[Array, "3"] = eqx.field(default_factory=lambda: _f([0.1, 0.1, 0.05]))  # (m/s)^2, (rad/s)^2
     velocity_max_dt: Float[Array, ""] = eqx.field(default_factory=lambda: _f(5.0))  # s
     lo_correlation_s: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.1))  # s
+    loop_max_chi2: Float[Array, ""] = eqx.field(default_factory=lambda: _f(25.0))  # chi-square, 3 dof
 
 
 class SlamInputs(eqx.Module):
@@ -128,6 +135,7 @@ class SlamState(eqx.Module):
     node_lo: Float[Array, "n 3"]
     node_lo_valid: Bool[Array, " n"]
     node_twist: Float[Array, "n 3"]
+    node_cov: Float[Array, "n 3 3"]  # covariance of the node's pose in the last node's frame (its links)
     ranges: Float[Array, "n b"]
     valid: Bool[Array, "n b"]
     bearings: Float[Array, " b"]
@@ -149,6 +157,7 @@ class SlamOutput(eqx.Module):
     response: Float[Array, ""]  # scan-match response of a new node (NaN otherwise)
     loop_closed: Bool[Array, ""]
     loop_node: Int[Array, ""]  # the old node of an accepted closure (-1 otherwise)
+    loop_chi2: Float[Array, ""]  # consistency chi-square of a candidate that passed the match tests (NaN otherwise)
 
 
 def init(spec: SlamSpec, params: SlamParams, bearings: Float[Array, " b"]) -> SlamState:
@@ -175,6 +184,7 @@ def init(spec: SlamSpec, params: SlamParams, bearings: Float[Array, " b"]) -> Sl
         node_lo=jnp.zeros((n, 3)),
         node_lo_valid=jnp.zeros(n, bool),
         node_twist=jnp.zeros((n, 3)),
+        node_cov=jnp.zeros((n, 3, 3)),
         ranges=jnp.full((n, b), jnp.nan),
         valid=jnp.zeros((n, b), bool),
         bearings=_f(bearings),
@@ -299,12 +309,15 @@ def _add_node(spec: SlamSpec, params: SlamParams, state: SlamState, pred, inp: S
     z_link = jnp.where(good, _between(x_last, matched), _between(x_last, pred))
     info_link = jnp.where(good, _information(cov_match), fallback)
     pose = jnp.where(good, matched, pred)
+    info_step = info_link  # the node's links as one information, for the loop-closure test
     if spec.lo_constraints != "off":
         z_leg, info_leg, leg_ok = _leg_edge(spec, params, state, last, inp)
         leg_ok = leg_ok & ~first
         fused = _fuse(params, x_last, z_link, info_link, jnp.where(leg_ok, z_leg, 0.0), info_leg)
         pose = jnp.where(leg_ok, fused, pose)
+        info_step = info_step + jnp.where(leg_ok, info_leg, 0.0)
     pose = jnp.where(first, pred, pose)
+    cov_step = jnp.where(first, 0.0, jnp.linalg.inv(info_step))
 
     g = state.graph
     g = eqx.tree_at(lambda g: (g.poses, g.node_mask), g, (g.poses.at[j].set(pose), g.node_mask.at[j].set(True)))
@@ -317,6 +330,7 @@ def _add_node(spec: SlamSpec, params: SlamParams, state: SlamState, pred, inp: S
             s.node_lo,
             s.node_lo_valid,
             s.node_twist,
+            s.node_cov,
             s.ranges,
             s.valid,
             s.lo_cov,
@@ -331,6 +345,7 @@ def _add_node(spec: SlamSpec, params: SlamParams, state: SlamState, pred, inp: S
             state.node_lo.at[j].set(inp.lo_pose),
             state.node_lo_valid.at[j].set(inp.lo_valid),
             state.node_twist.at[j].set(inp.lo_twist),
+            state.node_cov.at[j].set(cov_step),
             state.ranges.at[j].set(inp.ranges),
             state.valid.at[j].set(inp.valid),
             jnp.zeros((3, 3)),
@@ -352,6 +367,24 @@ def _insert(spec: SlamSpec, params: SlamParams, grid: OccupancyGrid, base, range
     return insert_scan(spec.grid, params.occupancy, grid, _sensor(params, base), r, bearings)
 
 
+def chain_covariance(state: SlamState, i: Int[Array, ""], j: Int[Array, ""]) -> Float[Array, "3 3"]:
+    """Covariance of node j's pose in node i's frame (right perturbation) along the chain of links from i
+    to j: each node k's link covariance moved into node j's frame by Ad(T_k_j^-1) and summed."""
+    poses = state.graph.poses
+    k = jnp.arange(poses.shape[0])
+    on = (k > i) & (k <= j) & state.graph.node_mask
+    A = jax.vmap(lambda p: se2(_between(p, poses[j])).inverse().adjoint())(poses)
+    return jnp.einsum("k,kab,kbc,kdc->ad", on.astype(poses.dtype), A, state.node_cov, A)
+
+
+def _loop_chi2(state: SlamState, i, j, z: Float[Array, "3"], cov_z: Float[Array, "3 3"]) -> Float[Array, ""]:
+    """Chi-square of a loop constraint z (node j in node i's frame) against the graph's estimate of it."""
+    x = state.graph.poses
+    r = _between(z, _between(x[i], x[j]))
+    S = chain_covariance(state, i, j) + cov_z
+    return r @ jnp.linalg.solve(0.5 * (S + S.T) + 1e-9 * jnp.eye(3), r)
+
+
 def _close_loop(spec: SlamSpec, params: SlamParams, state: SlamState, j, response):
     g = state.graph
     cand = find_loop_closure(
@@ -359,26 +392,20 @@ def _close_loop(spec: SlamSpec, params: SlamParams, state: SlamState, j, respons
     )
     L = se2(params.T_base_laser)
     z = xy_theta(L @ se2(cand.T_i_j) @ L.inverse())
-    state = _add_edge(
-        state,
-        cand.i,
-        j,
-        z,
-        _information(_to_base_cov(params, cand.covariance) * params.match_cov_scale),
-        ROBUST_NONE,
-        EDGE_LOOP,
-        cand.accept,
-    )
+    cov_z = _to_base_cov(params, cand.covariance) * params.match_cov_scale
+    chi2 = _loop_chi2(state, cand.i, j, z, cov_z)
+    accept = cand.accept & (chi2 <= params.loop_max_chi2)
+    state = _add_edge(state, cand.i, j, z, _information(cov_z), ROBUST_NONE, EDGE_LOOP, accept)
     # Robots without a closure run no solver iteration (the loop's trip count is 0), also under vmap.
-    trips = jnp.where(cand.accept, params.solver.max_iterations, 0)
+    trips = jnp.where(accept, params.solver.max_iterations, 0)
     solver = eqx.tree_at(lambda s: s.max_iterations, params.solver, trips)
     graph, _ = optimize(state.graph, solver)
     state = eqx.tree_at(
         lambda s: (s.graph, s.loops, s.map_stale),
         state,
-        (graph, state.loops + cand.accept.astype(state.loops.dtype), state.map_stale | cand.accept),
+        (graph, state.loops + accept.astype(state.loops.dtype), state.map_stale | accept),
     )
-    return state, response, cand.accept, jnp.where(cand.accept, cand.i, -1)
+    return state, response, accept, jnp.where(accept, cand.i, -1), jnp.where(cand.accept, chi2, jnp.nan)
 
 
 def _run_if(pred: Bool[Array, ""], f, operand):
@@ -435,8 +462,9 @@ def step(spec: SlamSpec, params: SlamParams, state: SlamState, inp: SlamInputs) 
     new_slot = (params.min_interval <= 0) | (jnp.floor(inp.t / interval) > jnp.floor(state.t_prev / interval))
     due = usable & ~full & (first | (moved & new_slot))
 
-    none = (state, jnp.asarray(jnp.nan), jnp.asarray(False), jnp.asarray(-1, jnp.int32))
-    state, response, closed, loop_node = _run_if(due, lambda c: _add_node(spec, params, c[0], pred, inp), none)
+    nan = jnp.asarray(jnp.nan)
+    none = (state, nan, jnp.asarray(False), jnp.asarray(-1, jnp.int32), nan)
+    state, response, closed, loop_node, loop_chi2 = _run_if(due, lambda c: _add_node(spec, params, c[0], pred, inp), none)
     if spec.refresh_map:
         state = refresh_map(spec, params, state)
     new = state.n_nodes - 1
@@ -453,6 +481,7 @@ def step(spec: SlamSpec, params: SlamParams, state: SlamState, inp: SlamInputs) 
         response=response,
         loop_closed=closed,
         loop_node=loop_node,
+        loop_chi2=loop_chi2,
     )
     return state, out
 

@@ -144,5 +144,6 @@ def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=
         velocity_cov=f([v["leg_velocity_var_xy"], v["leg_velocity_var_xy"], v["leg_velocity_var_yaw"]]),
         velocity_max_dt=f(v["leg_velocity_max_dt"]),
         lo_correlation_s=f(v["leg_correlation_time"]),
+        loop_max_chi2=f(v["loop_consistency_chi2"]),
     )
     return spec, params
