@@ -13,6 +13,13 @@ Repeated structure (a corridor of identical doors or pillars) can give a confide
 The coarse search is therefore run a second time with the translations within
 `ambiguity_distance` of the best one left out; when that second, distinct peak reaches
 `ambiguity_ratio` times the best coarse response, the candidate is rejected as ambiguous.
+
+A scan that sees one wall, or two parallel ones, does not say where along them the robot is: its
+response is a ridge, and the spot the search picks on it is noise. The fine match's covariance (the
+response spread) shows it; a candidate whose largest position standard deviation exceeds
+`max_position_std` is rejected as degenerate. (The spread is measured on a lattice of the fine window,
++-0.5 m by default, so it saturates near 0.29 m however long the ridge: the test is on its size, not
+a weight to trust.)
 """
 
 from __future__ import annotations
@@ -46,6 +53,7 @@ class LoopParams(eqx.Module):
     fine_response: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(0.45))
     ambiguity_distance: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(0.5))  # m
     ambiguity_ratio: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(0.9))
+    max_position_std: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(0.15))  # m
 
 
 class LoopCandidate(eqx.Module):
@@ -116,11 +124,17 @@ def find_loop_closure(
     fine = match_scan(spec.fine, params.match, fine_grid, coarse.pose, ranges[j], bearings, valid[j])
 
     unambiguous = second.coarse_response < params.ambiguity_ratio * coarse.coarse_response
+    # Largest eigenvalue of the 2x2 position covariance, in closed form.
+    c = fine.covariance
+    half_trace, det = 0.5 * (c[0, 0] + c[1, 1]), c[0, 0] * c[1, 1] - c[0, 1] ** 2
+    largest_var = half_trace + jnp.sqrt(jnp.maximum(half_trace**2 - det, 0.0))
+    constrained = largest_var <= params.max_position_std**2
     accept = (
         found
         & (coarse.coarse_response >= params.coarse_response)
         & (fine.response >= params.fine_response)
         & unambiguous
+        & constrained
     )
     with jax.default_matmul_precision("highest"):  # GPUs would round float32 matmuls to TF32
         T_world_i = SE2.from_xy_theta(poses[nearest, 0], poses[nearest, 1], poses[nearest, 2])

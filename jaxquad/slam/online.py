@@ -109,7 +109,7 @@ class SlamParams(eqx.Module):
     velocity_cov: Float[Array, "3"] = eqx.field(default_factory=lambda: _f([0.1, 0.1, 0.05]))  # (m/s)^2, (rad/s)^2
     velocity_max_dt: Float[Array, ""] = eqx.field(default_factory=lambda: _f(5.0))  # s
     lo_correlation_s: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.1))  # s
-    loop_max_chi2: Float[Array, ""] = eqx.field(default_factory=lambda: _f(25.0))  # chi-square, 3 dof
+    loop_max_chi2: Float[Array, ""] = eqx.field(default_factory=lambda: _f(16.27))  # chi-square, 3 dof
 
 
 class SlamInputs(eqx.Module):

@@ -130,6 +130,7 @@ def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=
             fine_response=f(v["loop_match_minimum_response_fine"]),
             ambiguity_distance=f(v["loop_ambiguity_distance"]),
             ambiguity_ratio=f(v["loop_ambiguity_ratio"]),
+            max_position_std=f(v["loop_match_maximum_std"]),
         ),
         occupancy=OccupancyParams(range_max=f(v["max_laser_range"])),
         solver=SolverParams(robust_width=f(v["robust_width"]), max_iterations=jnp.asarray(v["solver_max_iterations"])),
