@@ -1,0 +1,104 @@
+"""The online SLAM's loop-closure consistency test: the chain covariance against a NumPy Monte-Carlo
+compounding of the links, and a confident but wrong closure (one scan cast from a displaced pose, as a
+scan matched to the wrong place) rejected where it used to drag the graph."""
+
+from __future__ import annotations
+
+import functools
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from _laser2d import cast
+from test_slam_online import BEARINGS, LOOP, WORLD, _ate, _drifted, _inputs, _spec
+
+from jaxquad.slam import SlamParams, final_poses, run_fleet
+from jaxquad.slam import online
+
+
+def _exp(xi):
+    """NumPy SE(2) exponential of (vx, vy, w) rows -> (x, y, theta) rows (closed form)."""
+    vx, vy, w = xi[..., 0], xi[..., 1], xi[..., 2]
+    small = np.abs(w) < 1e-9
+    ws = np.where(small, 1.0, w)
+    a = np.where(small, 1.0 - w**2 / 6, np.sin(ws) / ws)
+    b = np.where(small, w / 2, (1 - np.cos(ws)) / ws)
+    return np.stack([a * vx - b * vy, b * vx + a * vy, w], -1)
+
+
+def _compose(p, d):
+    c, s = np.cos(p[..., 2]), np.sin(p[..., 2])
+    return np.stack([p[..., 0] + c * d[..., 0] - s * d[..., 1], p[..., 1] + s * d[..., 0] + c * d[..., 1], p[..., 2] + d[..., 2]], -1)
+
+
+def _between(a, b):
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    d = b[..., :2] - a[..., :2]
+    yaw = (b[..., 2] - a[..., 2] + np.pi) % (2 * np.pi) - np.pi
+    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1], yaw], -1)
+
+
+def test_chain_covariance_matches_monte_carlo():
+    rng = np.random.default_rng(0)
+    n, i, j = 8, 1, 6
+    links = np.c_[rng.uniform(0.2, 0.6, n), rng.uniform(-0.2, 0.2, n), rng.uniform(-0.5, 0.5, n)]
+    links[0] = [0.3, -0.2, 0.4]  # node 0's pose
+    covs = []
+    for _ in range(n):
+        L = rng.normal(size=(3, 3)) * [0.01, 0.01, 0.004]
+        covs.append(L @ L.T + np.diag([1e-5, 1e-5, 1e-6]))
+    covs = np.array(covs)
+    poses = [links[0]]
+    for k in range(1, n):
+        poses.append(_compose(poses[-1], links[k]))
+    poses = np.array(poses)
+    state = online.init(_spec("preintegrated"), SlamParams(), jnp.asarray(BEARINGS))
+    cap = state.graph.poses.shape[0]
+    pad = lambda x: jnp.asarray(np.concatenate([x, np.zeros((cap - n, *x.shape[1:]))]), jnp.float32)  # noqa: E731
+    state = eqx.tree_at(
+        lambda s: (s.graph.poses, s.graph.node_mask, s.node_cov),
+        state,
+        (pad(poses), jnp.arange(cap) < n, pad(covs)),
+    )
+    got = np.asarray(jax.jit(online.chain_covariance)(state, jnp.asarray(i), jnp.asarray(j)))
+    # Monte Carlo: links i+1..j each perturbed on the right by a draw of its covariance, composed in NumPy.
+    m = 200_000
+    T = np.broadcast_to(np.zeros(3), (m, 3))
+    for k in range(i + 1, j + 1):
+        xi = rng.multivariate_normal(np.zeros(3), covs[k], size=m)
+        T = _compose(_compose(T, links[k]), _exp(xi))
+    nominal = _between(poses[i], poses[j])
+    err = _between(np.broadcast_to(nominal, (m, 3)), T)  # right perturbation of T_i_j, first order
+    want = np.cov(err.T)
+    np.testing.assert_allclose(got, want, rtol=0.05, atol=2e-3 * np.sqrt(np.outer(np.diag(want), np.diag(want))).max())
+
+
+@functools.cache
+def _corrupted_run(loop_max_chi2: float):
+    """The loop of test_slam_online with the first closing node's scan cast 1.3 m and 15 deg off."""
+    odom = _drifted(LOOP, 0.05, 0.04)
+    lo = _drifted(LOOP, 0.01, 0.005)
+    ranges = np.stack([cast(WORLD, p, BEARINGS, 6.0) for p in LOOP])
+    x = _inputs(LOOP, odom, lo, ranges)
+    _, out, _ = run_fleet(_spec("preintegrated"), SlamParams(), x)
+    k = int(np.flatnonzero(out.loop_closed[0])[0])  # the scan whose node closes the loop first
+    x["ranges"] = x["ranges"].copy()
+    x["ranges"][0, k] = cast(WORLD, LOOP[k] + [0.9, 0.9, np.deg2rad(15.0)], BEARINGS, 6.0)
+    params = eqx.tree_at(lambda p: p.loop_max_chi2, SlamParams(), jnp.asarray(loop_max_chi2, jnp.float32))
+    state, out, online_state = run_fleet(_spec("preintegrated"), params, x)
+    return k, x, state, out, online_state
+
+
+def test_wrong_loop_closure_rejected_by_consistency():
+    k, x, state, out, online_state = _corrupted_run(float(SlamParams().loop_max_chi2))
+    _, _, state_off, out_off, _ = _corrupted_run(1e9)  # no consistency test: the old behaviour
+    assert out.added[0, k] and np.isfinite(out.loop_chi2[0, k])
+    # The wrong closure passes the match tests; without the consistency test it is taken and drags the path.
+    assert out_off.loop_closed[0, k]
+    ate_off = _ate(final_poses(state_off, out_off)[0], LOOP)
+    ate = _ate(final_poses(state, out)[0], LOOP)
+    chi2 = float(out.loop_chi2[0, k])
+    assert not out.loop_closed[0, k] and chi2 > float(SlamParams().loop_max_chi2), (chi2, ate, ate_off)
+    assert ate < 0.1 < ate_off, (ate, ate_off)
+    assert int(state.loops[0]) >= 1  # the honest closures of the next nodes are still taken
