@@ -29,7 +29,10 @@ def _exp(xi):
 
 def _compose(p, d):
     c, s = np.cos(p[..., 2]), np.sin(p[..., 2])
-    return np.stack([p[..., 0] + c * d[..., 0] - s * d[..., 1], p[..., 1] + s * d[..., 0] + c * d[..., 1], p[..., 2] + d[..., 2]], -1)
+    return np.stack(
+        [p[..., 0] + c * d[..., 0] - s * d[..., 1], p[..., 1] + s * d[..., 0] + c * d[..., 1], p[..., 2] + d[..., 2]],
+        -1,
+    )
 
 
 def _between(a, b):
