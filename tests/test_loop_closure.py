@@ -1,5 +1,6 @@
 """Loop-closure candidates on scans cast by an independent NumPy caster: a loop around a block (found, with
-the true relative pose), a corridor of identical pillars (rejected as ambiguous), too-short chains."""
+the true relative pose), a corridor of identical pillars (rejected as ambiguous), too-short chains, a match
+spread too wide (rejected as degenerate)."""
 
 import functools
 
@@ -121,3 +122,18 @@ def test_vmapped_over_robots_equals_single():
         single = _find(SPEC, LoopParams(), *args, js[k])
         assert bool(fleet.accept[k]) == bool(single.accept) and bool(single.accept)
         np.testing.assert_allclose(np.asarray(fleet.T_i_j[k]), np.asarray(single.T_i_j), atol=1e-5)
+
+
+def test_degenerate_match_rejected_by_its_spread():
+    """The position-spread test against NumPy's largest eigenvalue of the match covariance: a limit just
+    below it rejects the loop found above, just above it keeps it."""
+    truth = _path([(0.0, -3.0), (4.0, -3.0), (4.0, 3.0), (-4.0, 3.0), (-4.0, -3.0), (1.5, -3.0)], 0.25)
+    poses, ranges, valid, mask = _nodes(LOOP_WORLD, truth, (0.5, -0.35, 0.06))
+    j = len(truth) - 1
+    out = _find(SPEC, LoopParams(), poses, ranges, valid, mask, j)
+    assert bool(out.accept)
+    largest = float(np.sqrt(np.linalg.eigvalsh(np.asarray(out.covariance, np.float64)[:2, :2]).max()))
+    assert largest <= float(LoopParams().max_position_std)
+    for scale, accept in ((0.99, False), (1.01, True)):
+        p = LoopParams(max_position_std=jnp.asarray(scale * largest, jnp.float32))
+        assert bool(_find(SPEC, p, poses, ranges, valid, mask, j).accept) == accept
