@@ -13,8 +13,7 @@ import numpy as np
 from _laser2d import cast
 from test_slam_online import BEARINGS, LOOP, WORLD, _ate, _drifted, _inputs, _spec
 
-from jaxquad.slam import SlamParams, final_poses, run_fleet
-from jaxquad.slam import online
+from jaxquad.slam import SlamParams, final_poses, online, run_fleet
 
 
 def _exp(xi):

@@ -464,7 +464,8 @@ def step(spec: SlamSpec, params: SlamParams, state: SlamState, inp: SlamInputs) 
 
     nan = jnp.asarray(jnp.nan)
     none = (state, nan, jnp.asarray(False), jnp.asarray(-1, jnp.int32), nan)
-    state, response, closed, loop_node, loop_chi2 = _run_if(due, lambda c: _add_node(spec, params, c[0], pred, inp), none)
+    add = lambda c: _add_node(spec, params, c[0], pred, inp)  # noqa: E731
+    state, response, closed, loop_node, loop_chi2 = _run_if(due, add, none)
     if spec.refresh_map:
         state = refresh_map(spec, params, state)
     new = state.n_nodes - 1
