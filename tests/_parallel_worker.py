@@ -7,7 +7,6 @@ grid:  grid-search counts on 1 and on 2 devices (a grid size that is not a multi
        on 1 and on 2 devices.
 fleet: a 3-robot fleet (padding to 4 on 2 devices) simulated on 1 and on 2 devices, and the 1-device
        log estimated on 1 and on 2 devices.
-explore: a 3-robot exploration closed loop (padding to 4) for one 0.96 s chunk, on 1 and on 2 devices.
 multiprocess: one of two processes: the grid and the SLAM on the devices of both, and a time-major (T, N)
        array split over its robot axis gathered piece by piece; process 0 writes OUT.
 """
@@ -151,19 +150,6 @@ def multiprocess(out: str) -> None:
         np.savez(out, **res)
 
 
-def explore(out: str) -> None:
-    from jaxquad.explore import ExploreConfig
-    from jaxquad.explore import explore as run
-
-    res = {}
-    for d in (1, 2):
-        cfg = ExploreConfig(n_robots=3, seconds=0.96, samples=16, horizon=5, chunk_ticks=10, trace_robots=3, devices=d)
-        r = run(cfg)
-        keys = ("outcome", "coverage", "error", "true_pose", "pose", "maps", "nodes", "distance", "t")
-        res |= {f"d{d}_{k}": np.asarray(getattr(r, k)) for k in keys}
-    np.savez(out, **res)
-
-
 def slam_run(devices) -> dict:
     """Online SLAM of 3 robots (padded to 4 on 2 devices) along drifting odometry in a NumPy-cast box world
     (also run on this process's one device by the tests, as the reference)."""
@@ -212,7 +198,6 @@ if __name__ == "__main__":
     scenarios = {
         "grid": grid,
         "fleet": fleet,
-        "explore": explore,
         "multiprocess": multiprocess,
     }
     scenarios[sys.argv[1]](*sys.argv[2:])

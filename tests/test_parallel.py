@@ -227,16 +227,3 @@ def test_fleet_same_on_two_devices(fleet_run):
     assert r["d1_q"].shape[:2] == (3, 64) and r["d1_depth"].shape == (3, 8, 12, 16) and not r["d1_fallen"].any()
     for k in [f[3:] for f in r.files if f.startswith("d1_")]:
         _close(r[f"d2_{k}"], r[f"d1_{k}"], k)
-
-
-@pytest.mark.slow
-def test_exploration_loop_same_on_two_devices(tmp_path):
-    """The closed loop of `explore` (estimator, online SLAM, frontiers, planner, MPPI over the simulator);
-    `navigate` runs its own loop through the same fleet functions (`jaxquad.nav.fleet_loop`)."""
-    out = tmp_path / "explore.npz"
-    _two_devices("explore", str(out), timeout=900)
-    r = np.load(out)
-    assert r["d1_true_pose"].shape == (10, 3, 3) and np.ptp(r["d1_true_pose"][:, :, :2], axis=0).max() > 0.01
-    assert (r["d1_nodes"] > 0).all() and (r["d1_maps"] >= 0).any() and (r["d1_distance"] > 0.05).all()
-    for k in [f[3:] for f in r.files if f.startswith("d1_")]:
-        _close(r[f"d2_{k}"], r[f"d1_{k}"], k)
