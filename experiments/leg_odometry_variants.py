@@ -19,7 +19,10 @@ value is 3 for a consistent covariance), with the fraction of samples inside the
 bound (7.81).
 
     python experiments/leg_odometry_variants.py LOG.npz [LOG.npz ...] [--contacts truth mixed]
-        [--params tuned.yaml] [--variants point rolling robust floor] [--json out.json]
+        [--params tuned.yaml] [--variants point rolling robust floor] [--sigma-prior 0.04 0.06] [--json out.json]
+
+`--sigma-prior` sweeps the prior noise level of the twist covariance (a row per value): the NEES
+column shows which value makes the covariance consistent for a gait.
 """
 
 from __future__ import annotations
@@ -81,7 +84,7 @@ def score_robot(t, est: dict, gt_pose: np.ndarray, valid: np.ndarray) -> dict:
     }
 
 
-def run(log_path: str, contacts: str, variant: str, params_path: str | None) -> dict:
+def run(log_path: str, contacts: str, variant: str, params_path: str | None, sigma_prior: float | None = None) -> dict:
     import jax
 
     from jaxquad.estimate import pipeline
@@ -94,6 +97,8 @@ def run(log_path: str, contacts: str, variant: str, params_path: str | None) -> 
     inputs, config = pipeline.inputs_from_log(robot, log, contacts)
     config = dataclasses.replace(config, **VARIANTS[variant])
     params = load_params(params_path, len(robot.foot_names), contacts)
+    if sigma_prior is not None:
+        params = dataclasses.replace(params, sigma_prior=np.float32(sigma_prior))
     out = jax.tree.map(np.asarray, pipeline.estimate_fleet(robot, config, params, inputs))
     t = np.asarray(log["t"], np.float64)
     rows = []
@@ -135,6 +140,15 @@ def main(argv=None) -> int:
         choices=list(VARIANTS),
         help="default: all",
     )
+    ap.add_argument(
+        "--sigma-prior",
+        nargs="+",
+        type=float,
+        default=[None],
+        metavar="M_PER_S",
+        help="prior foot-velocity noise of the twist covariance, m/s; several values sweep it "
+        "(default: the pipeline's, PipelineParams.default().sigma_prior)",
+    )
     ap.add_argument("--json", default=None, help="also write the rows to this JSON file")
     args = ap.parse_args(argv)
     import platform
@@ -166,13 +180,12 @@ def main(argv=None) -> int:
     for log in args.logs:
         for contacts in args.contacts:
             for variant in args.variants:
-                r = run(log, contacts, variant, args.params)
-                rows.append(r)
-                vals = " | ".join(f"{r[k]:.3f}" for k in keys)
-                print(
-                    f"| {log} | {r['robot']} | {contacts} | {variant} | {r['robots']} | {vals} |",
-                    flush=True,
-                )
+                for sigma in args.sigma_prior:
+                    r = run(log, contacts, variant, args.params, sigma) | {"sigma_prior": sigma}
+                    rows.append(r)
+                    vals = " | ".join(f"{r[k]:.3f}" for k in keys)
+                    label = variant if sigma is None else f"{variant}, sigma_prior {sigma:g}"
+                    print(f"| {log} | {r['robot']} | {contacts} | {label} | {r['robots']} | {vals} |", flush=True)
     if args.json:
         from jaxquad.io.atomic import atomic_write_text
 
