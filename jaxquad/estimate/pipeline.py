@@ -44,7 +44,7 @@ from jaxtyping import Array, Float
 from jaxquad import dynamics, parallel
 from jaxquad.estimate import attitude as att
 from jaxquad.estimate import differentiate as dif
-from jaxquad.estimate.inputs import R_base_imu, RobotInputs, full_state, gaps, robot_inputs, torque_ok
+from jaxquad.estimate.inputs import R_base_imu, RobotInputs, full_state, gaps, observer_rows, robot_inputs, torque_ok
 from jaxquad.estimate.odometry import Pose, odometry_step
 from jaxquad.estimate.pipeline_types import (
     Estimate,
@@ -105,10 +105,6 @@ def _hold(ok, new, old):
     return jax.tree.map(lambda a, b: jnp.where(ok, a, b), new, old)
 
 
-def _observer_rows(robot, config: PipelineConfig) -> np.ndarray:
-    return np.arange(robot.nv) if config.observer_rows == "full" else np.asarray(robot.dof_adr)
-
-
 def pipeline_init(
     robot,
     config: PipelineConfig,
@@ -133,7 +129,8 @@ def pipeline_init(
     if config.contacts in ("observer", "mixed"):
         obs_params = observer_params_for_axes(params.observer, config.observer_axes)
         n_force = n_feet * (3 if config.observer_axes == "xyz" else 1)
-        obs0 = ContactObserver().init(obs_params, jnp.zeros(_observer_rows(robot, config).size, first.q.dtype), n_force)
+        n_rows = observer_rows(robot, config.observer_rows).size
+        obs0 = ContactObserver().init(obs_params, jnp.zeros(n_rows, first.q.dtype), n_force)
     else:
         obs0 = None
     zeros3 = jnp.zeros(3, first.gyro.dtype)
@@ -160,7 +157,7 @@ def pipeline_step(
     observer = config.contacts in ("observer", "mixed")
     n_feet = len(robot.foot_names)
     R_imu = jnp.asarray(R_base_imu(robot), dtype=x.gyro.dtype)
-    rows = _observer_rows(robot, config)
+    rows = observer_rows(robot, config.observer_rows)
     obs_params = observer_params_for_axes(params.observer, config.observer_axes)
     dt, q, qd_in, tau, gyro_imu, acc_imu = x.dt, x.q, x.qd, x.tau, x.gyro, x.acc
     quat_in, w_in, valid_in = x.quat_wxyz, x.contact_weight, x.valid

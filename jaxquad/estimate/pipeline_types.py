@@ -14,7 +14,7 @@ from jaxtyping import Array, Bool, Float
 
 from jaxquad.estimate import attitude as att
 from jaxquad.estimate import differentiate as dif
-from jaxquad.estimate.inputs import CONTACT_SOURCES
+from jaxquad.estimate.inputs import CONTACT_SOURCES, OBSERVER_ROWS
 from jaxquad.estimate.odometry import Pose
 from jaxquad.kernels import ObserverParams
 from jaxquad.kernels import floor as flr
@@ -63,10 +63,12 @@ class PipelineConfig:
     has_qd: bool = True  # use RobotInputs.qd, else differentiate q
     has_attitude: bool = True  # use RobotInputs.quat_wxyz, else run the attitude filter
     soft_contacts: bool = False  # observer: weight feet by contact_soft instead of 0/1
-    # observer rows: "full" = every generalized coordinate, floating base included (the paper);
-    # "joints" = the actuated joints only, insensitive to errors in the estimated base velocity (the
-    # previous leg-odometry twist, whose errors the full rows read as foot forces of tens of newtons).
-    observer_rows: str = "joints"
+    # observer rows (`inputs.observer_rows`): "full" = every generalized coordinate, floating base
+    # included (the paper); "joints" = the actuated joints, insensitive to errors in the estimated
+    # base velocity (the previous leg-odometry twist, whose errors the full rows read as foot forces
+    # of tens of newtons); "legs" = the legs' own joints, which also leaves out a spine's row (it
+    # couples to the base velocity 4-5 times more than a leg row).
+    observer_rows: str = "legs"
     # observer force axes: "xyz" = full foot forces, z components thresholded (a z-only observer
     # reads the stance feet's tangential friction forces as z forces, on every foot); "z" = z only.
     observer_axes: str = "xyz"
@@ -85,8 +87,8 @@ class PipelineConfig:
     def __post_init__(self):
         if self.contacts not in CONTACT_SOURCES:
             raise ValueError(f"contacts must be one of {CONTACT_SOURCES}, got {self.contacts!r}")
-        if self.observer_rows not in ("full", "joints"):
-            raise ValueError(f"observer_rows must be 'full' or 'joints', got {self.observer_rows!r}")
+        if self.observer_rows not in OBSERVER_ROWS:
+            raise ValueError(f"observer_rows must be one of {OBSERVER_ROWS}, got {self.observer_rows!r}")
         if self.robust not in ("none", "huber", "cauchy"):
             raise ValueError(f"robust must be 'none', 'huber' or 'cauchy', got {self.robust!r}")
         if self.observer_axes not in ("z", "xyz"):

@@ -28,13 +28,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from jaxquad.estimate.inputs import R_base_imu, full_state, gaps, robot_inputs, torque_ok
+from jaxquad.estimate.inputs import R_base_imu, full_state, gaps, observer_rows, robot_inputs, torque_ok
 
 
 class ObserverInputs(eqx.Module):
     """Observer inputs of one robot per sample (a fleet adds a leading robot axis N)."""
 
-    p: Float[Array, "*N T n"]  # generalized momentum M v (n = nv, or nu for the joint rows)
+    p: Float[Array, "*N T n"]  # generalized momentum M v (n: the observer's rows, `inputs.observer_rows`)
     tau_bar: Float[Array, "*N T n"]  # S^T tau + C^T v - g (+ passive joint forces)
     J_z: Float[Array, "*N T R n"]  # world rows of the foot Jacobians (m per unit of qvel), `axes` per foot
     dt: Float[Array, "*N T"]  # s; NaN where the step is skipped (first sample, gap, bad torque)
@@ -73,18 +73,18 @@ def observer_inputs(
     chunk: int = 4096,
     axes: str = "xyz",
     passive: bool = True,
-    rows: str = "joints",
+    rows: str = "legs",
 ) -> tuple[ObserverInputs, ContactTruth, np.ndarray]:
     """Observer inputs and ground truth of every robot of a log (leading axis N; a single log is a
     fleet of one), and the sample times t (T,) in s. Samples go through MJX in chunks of `chunk`.
     axes: force rows per foot, "xyz" (full foot forces, the default) or "z"; passive: tau_bar with
-    the model's joint damping and friction; rows: the observer's generalized coordinates, "joints"
-    (the actuated joints) or "full" (floating base included). All three as the pipeline's
+    the model's joint damping and friction; rows: the observer's generalized coordinates, "legs"
+    (the legs' own joints), "joints" (every actuated joint, a spine's too) or "full" (floating base
+    included; `inputs.observer_rows`). All three as the pipeline's
     PipelineConfig.observer_axes / observer_passive / observer_rows, whose defaults they share."""
     if axes not in ("z", "xyz"):
         raise ValueError(f"axes must be 'z' or 'xyz', got {axes!r}")
-    if rows not in ("joints", "full"):
-        raise ValueError(f"rows must be 'joints' or 'full', got {rows!r}")
+    row_index = observer_rows(robot, rows)
     need = [k for k in ("tau", "qd", "gt_pose", "gt_contact", "gt_force") if k not in log]
     if need:
         raise ValueError(f"tuning needs {need} in the log (joint torques, joint velocities and ground truth)")
@@ -116,9 +116,7 @@ def observer_inputs(
         piece = [np.pad(a, ((0, pad), (0, 0)), mode="edge") for a in piece]  # one compiled size
         parts.append(jax.tree.map(lambda a, n=chunk - pad: np.asarray(a)[:n], fn(*piece)))
     p, tau_bar, J_z = (np.concatenate(x).reshape(n, T, *x[0].shape[1:]) for x in zip(*parts))
-    if rows == "joints":
-        dofs = np.asarray(robot.dof_adr)
-        p, tau_bar, J_z = p[..., dofs], tau_bar[..., dofs], J_z[..., dofs]
+    p, tau_bar, J_z = p[..., row_index], tau_bar[..., row_index], J_z[..., row_index]
 
     first, gap = (np.asarray(x) for x in gaps(jnp.asarray(dt), jnp.float32(max_gap_s)))
     step_dt = np.where(tau_ok & ~(first | gap)[None], dt[None], np.nan)
