@@ -397,7 +397,7 @@ def test_tune_on_a_single_robot_log_with_the_default_holdout(f, tmp_path, capsys
         "chunk": 4096,
         "axes": "xyz",
         "passive": True,
-        "rows": "joints",
+        "rows": "legs",
     }
     assert set(printed["options"]) == {"chunk", "f1_tolerance", "top_k", "max_delay_s", "devices"}
     assert printed["base_params"]["bandwidth"] == 30.0  # the paper's, around which the grid lies
