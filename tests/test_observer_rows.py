@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 
 from jaxquad import dynamics
+from jaxquad.estimate import PipelineConfig
 from jaxquad.estimate.inputs import observer_rows
-from jaxquad.estimate.pipeline import PipelineConfig
 from jaxquad.kernels import ContactObserver, ObserverParams
 from jaxquad.robots import load
 
