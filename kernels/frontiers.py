@@ -8,6 +8,11 @@ reaches `min_size`, a free cell 4-adjacent to it is reachable (finite cost-to-go
 its goal cell is not blacklisted. Its goal is that reachable adjacent free cell nearest to the cluster's
 centroid; its cost is potential_scale * (path cost to the cluster, m) - gain_scale * (size, m), so
 gain_scale = 0 picks the nearest frontier (the paper) and gain_scale > 0 favours large ones.
+
+Commitment: a cluster whose goal cell lies in the optional `keep` mask (the caller's current goal and its
+surroundings) is a candidate at any size and is chosen before every other candidate. Without it the choice
+flips between far-apart clusters whenever the nearest one's size wavers around `min_size` under noisy scans,
+and a robot walks to and fro without reaching either.
 """
 
 from __future__ import annotations
@@ -107,8 +112,10 @@ def choose_frontier(
     value: Float[Array, "H W"],
     blacklist: Bool[Array, "H W"],
     params: FrontierParams,
+    keep: Bool[Array, "H W"] | None = None,
 ) -> FrontierChoice:
-    """The best frontier cluster given the robot's cost-to-go `value` (cells x weight; inf = unreachable)."""
+    """The best frontier cluster given the robot's cost-to-go `value` (cells x weight; inf = unreachable); a
+    cluster whose goal cell lies in `keep` first (see the module doc)."""
     h, w = grid.shape
     n = h * w + 1
     mask = frontier_mask(grid, params.free_thresh)
@@ -134,13 +141,17 @@ def choose_frontier(
     is_best = jnp.isfinite(d2_k) & (d2_k == best_d2[lab_k])
     goal_idx = jax.ops.segment_min(jnp.where(is_best, idx_k, h * w), lab_k, n)
 
-    blocked = jnp.append(blacklist.reshape(-1), True)[jnp.minimum(goal_idx, h * w)]
+    def at_goal(cells):  # per cluster: its goal cell's entry (False without a goal)
+        return jnp.append(cells.reshape(-1), False)[jnp.minimum(goal_idx, h * w)]
+
+    kept = at_goal(keep) if keep is not None else jnp.zeros(n, bool)
     size_m = size.astype(jnp.float32) * resolution
-    ok = (size_m >= params.min_size) & jnp.isfinite(path_cost) & ~blocked
+    ok = ((size_m >= params.min_size) | kept) & jnp.isfinite(path_cost) & ~at_goal(blacklist) & (goal_idx < h * w)
     ok = ok.at[n - 1].set(False)
     cost = params.potential_scale * path_cost * resolution - params.gain_scale * size_m
     cost = jnp.where(ok, cost, jnp.inf)
-    best = jnp.argmin(cost)
+    best_kept = jnp.argmin(jnp.where(kept, cost, jnp.inf))
+    best = jnp.where(ok[best_kept] & kept[best_kept], best_kept, jnp.argmin(cost))
     g = jnp.minimum(goal_idx[best], h * w - 1)
     return FrontierChoice(
         found=ok[best],

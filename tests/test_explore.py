@@ -83,3 +83,28 @@ def test_goal_without_progress_is_blacklisted_after_timeout():
     assert all(np.allclose(g, goals[0]) for g in goals[:4])
     assert np.linalg.norm(goals[4] - goals[0]) > 0.5
     assert bool(np.asarray(ex.blacklist)[tuple(np.asarray(grid.cell_of(jnp.asarray(goals[0]))))])
+
+
+def test_goal_is_kept_until_reached_then_blacklisted():
+    """Two frontier clusters; the robot keeps its goal when the other becomes nearer (a fresh robot at that pose
+    picks the other: the negative control), and blacklists it once within reach_radius (its frontier is left)."""
+    truth = _two_rooms()
+    known = np.where(np.arange(100)[None, :] < 25, truth, -1).astype(np.int8)
+    known[38:42, 24:26] = 100  # two clusters on the frontier line x = 1.25 m: lower (y < 1.9 m) and upper
+    grid = nav.cost_grid(NAV, jnp.asarray(known), jnp.zeros(2), RES)
+    update = jax.jit(nav.explore.update)
+    occ = jnp.asarray(known)
+    ex, _ = update(EXP, nav.explore.init(known.shape), occ, grid, jnp.array([0.5, 1.0, 0.0]), 1.0)
+    lower = np.asarray(ex.goal[:2])
+    assert lower[1] < 1.9
+    nearer_upper = jnp.array([0.6, 2.3, 0.0])
+    fresh, _ = update(EXP, nav.explore.init(known.shape), occ, grid, nearer_upper, 1.0)
+    upper = np.asarray(fresh.goal[:2])
+    assert upper[1] > 2.1  # a robot without a goal picks the nearest cluster
+    ex, _ = update(EXP, ex, occ, grid, nearer_upper, 1.0)
+    np.testing.assert_allclose(np.asarray(ex.goal[:2]), lower, atol=0.11)  # committed: the goal stays
+    assert not np.asarray(ex.blacklist).any()
+    at_goal = jnp.asarray([lower[0] - 0.3, lower[1], 0.0])  # within reach_radius, the frontier still there
+    ex, _ = update(EXP, ex, occ, grid, at_goal, 1.0)
+    assert bool(np.asarray(ex.blacklist)[tuple(np.asarray(grid.cell_of(jnp.asarray(lower))))])
+    np.testing.assert_allclose(np.asarray(ex.goal[:2]), upper, atol=0.11)

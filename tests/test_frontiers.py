@@ -60,15 +60,16 @@ def test_mask_and_clusters_match_scipy(seed):
     assert len(np.unique(labels[mask])) == n_ref
 
 
-def _reference_choice(grid, value, blacklist, min_size, res, gain_scale):
+def _reference_choice(grid, value, blacklist, min_size, res, gain_scale, keep=None):
+    """The loop's choice: (cost, (goal, centroid, size)); a cluster whose goal lies in `keep` (any size) first."""
     mask = _reference_mask(grid)
     ref, n_ref = ndimage.label(mask, structure=np.ones((3, 3)))
     reach = (grid >= 0) & (grid < FREE_THRESH) & np.isfinite(value)
+    keep = np.zeros(grid.shape, bool) if keep is None else keep
     best = (np.inf, None)
+    best_kept = (np.inf, None)
     for k in range(1, n_ref + 1):
         cells = np.argwhere(ref == k)
-        if len(cells) * res < min_size:
-            continue
         centroid = cells.mean(axis=0)
         cand = {
             (r + dr, c + dc)
@@ -81,16 +82,18 @@ def _reference_choice(grid, value, blacklist, min_size, res, gain_scale):
         cand = sorted(cand)
         d2 = [np.sum((np.array(p) - centroid) ** 2) for p in cand]
         goal = min((d, p[0] * grid.shape[1] + p[1]) for d, p in zip(d2, cand))[1]
-        if blacklist.flat[goal]:
+        if blacklist.flat[goal] or (len(cells) * res < min_size and not keep.flat[goal]):
             continue
         cost = min(value[p] for p in cand) * res - gain_scale * len(cells) * res
         if cost < best[0]:
             best = (cost, (goal, centroid, len(cells)))
-    return best
+        if keep.flat[goal] and cost < best_kept[0]:
+            best_kept = (cost, (goal, centroid, len(cells)))
+    return best_kept if best_kept[1] is not None else best
 
 
-@pytest.mark.parametrize("seed, gain_scale", [(3, 0.0), (4, 0.0), (5, 2.0)])
-def test_choice_matches_loop_reference(seed, gain_scale):
+@pytest.mark.parametrize("seed, gain_scale, keep", [(3, 0.0, False), (4, 0.0, False), (5, 2.0, False), (11, 0.0, True)])
+def test_choice_matches_loop_reference(seed, gain_scale, keep):
     grid = _random_map(seed)
     res = 0.05
     weight = np.where((grid >= 0) & (grid < FREE_THRESH), 1.0, np.inf).astype(np.float32)
@@ -100,10 +103,17 @@ def test_choice_matches_loop_reference(seed, gain_scale):
     value = np.asarray(_ctg(jnp.asarray(weight), jnp.asarray(source)))
     blacklist = np.zeros(grid.shape, bool)
     params = FrontierParams.default(gain_scale=gain_scale)
-    assert _reference_choice(grid, value, blacklist, 0.75, res, gain_scale)[1] is not None
+    first = _reference_choice(grid, value, blacklist, 0.75, res, gain_scale)
+    assert first[1] is not None
+    kept = np.zeros(grid.shape, bool)
+    if keep:  # keep the goals of the farthest clusters, small ones included (they would not qualify otherwise)
+        far = np.isfinite(value) & (value > np.quantile(value[np.isfinite(value)], 0.7))
+        kept = far & (grid >= 0) & (grid < FREE_THRESH)
+        assert _reference_choice(grid, value, blacklist, 0.75, res, gain_scale, kept)[1][0] != first[1][0]
+    sizes = []
     for _ in range(3):  # choose, blacklist the goal, choose again
-        want_cost, want = _reference_choice(grid, value, blacklist, 0.75, res, gain_scale)
-        got = _choose(jnp.asarray(grid), res, jnp.asarray(value), jnp.asarray(blacklist), params)
+        want_cost, want = _reference_choice(grid, value, blacklist, 0.75, res, gain_scale, kept)
+        got = _choose(jnp.asarray(grid), res, jnp.asarray(value), jnp.asarray(blacklist), params, jnp.asarray(kept))
         assert bool(got.found) == (want is not None)
         if want is None:
             break
@@ -112,7 +122,9 @@ def test_choice_matches_loop_reference(seed, gain_scale):
         assert tuple(np.asarray(got.goal_rc)) == divmod(goal, grid.shape[1])
         np.testing.assert_allclose(np.asarray(got.centroid_rc), centroid, rtol=1e-5)
         assert int(got.size) == size
+        sizes.append(size)
         blacklist.flat[goal] = True
+    assert not keep or min(sizes) * res < 0.75  # a kept cluster below min_size was chosen
 
 
 def test_fully_known_map_has_no_frontier():

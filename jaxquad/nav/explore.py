@@ -2,10 +2,13 @@
 
 `update` runs once per planning period (explore_lite re-plans every few seconds): it measures the
 progress towards the current goal, blacklists the goal (a disk of `blacklist_radius`) after
-`blacklist_timeout` seconds without the distance to it shrinking by `progress_margin`, computes the
-robot's cost-to-go over known free space, and picks the nearest reachable frontier cluster
-(`kernels.frontiers`). The goal's yaw faces from the robot towards it. `done` is set when no
-reachable, large enough, non-blacklisted frontier is left. Navigation to the goal is `jaxquad.nav`.
+`blacklist_timeout` seconds without the distance to it shrinking by `progress_margin`, or once the robot
+has come within `reach_radius` of it (a frontier the camera could resolve is gone by then: what is left
+lies in a blind spot, inside furniture seen edge-on or behind a wall), computes the robot's cost-to-go
+over known free space, and picks a reachable frontier cluster (`kernels.frontiers`): the current goal's
+own cluster while it lasts (commitment: `keep`, the disk of `blacklist_radius` around the goal), else the
+nearest. The goal's yaw faces from the robot towards it. `done` is set when no reachable, large enough,
+non-blacklisted frontier is left. Navigation to the goal is `jaxquad.nav`.
 """
 
 from __future__ import annotations
@@ -24,7 +27,8 @@ class ExploreParams(eqx.Module):
     cost_weight: Float[Array, ""]  # planner step weight = 1 + cost_weight * cost / 252
     blacklist_timeout: Float[Array, ""]  # s without progress before the goal is blacklisted
     progress_margin: Float[Array, ""]  # m the distance to the goal must shrink by to count as progress
-    blacklist_radius: Float[Array, ""]  # m around a blacklisted goal
+    blacklist_radius: Float[Array, ""]  # m around a blacklisted goal (and around the goal kept)
+    reach_radius: Float[Array, ""]  # m: a goal this close is done with (blacklisted if its frontier is left)
     start_tolerance: Float[Array, ""]  # m: a robot on a blocked cell plans from the nearest open cell
 
     @classmethod
@@ -36,6 +40,8 @@ class ExploreParams(eqx.Module):
             blacklist_timeout=f32(30.0),
             progress_margin=f32(0.1),
             blacklist_radius=f32(0.5),
+            # The camera's blind distance: 0.29 m from the base to the lens plus its 0.2 m minimum range.
+            reach_radius=f32(0.5),
             start_tolerance=f32(0.5),
         )
 
@@ -87,20 +93,21 @@ def update(
     progressed = distance < state.best_distance - params.progress_margin
     since = jnp.where(progressed, 0.0, state.since_progress + elapsed)
     best = jnp.where(progressed, distance, state.best_distance)
-    give_up = state.has_goal & (since > params.blacklist_timeout)
+    drop = state.has_goal & ((since > params.blacklist_timeout) | (distance < params.reach_radius))
     rr, cc = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
     g = grid.cell_of(state.goal[:2])
     disk = ((rr - g[0]) ** 2 + (cc - g[1]) ** 2).astype(jnp.float32) <= (params.blacklist_radius / grid.resolution) ** 2
-    blacklist = state.blacklist | (give_up & disk)
+    blacklist = state.blacklist | (drop & disk)
 
     if value is None:
         _, value = robot_value(params, grid, pose)
-    choice = choose_frontier(occupancy, grid.resolution, value, blacklist, params.frontier)
+    keep = disk & state.has_goal & ~drop
+    choice = choose_frontier(occupancy, grid.resolution, value, blacklist, params.frontier, keep)
 
     xy = grid.center_of(choice.goal_rc)
     goal = jnp.append(xy, jnp.arctan2(xy[1] - pose[1], xy[0] - pose[0]))
     # A goal that moved by more than the blacklist radius is a new goal: the progress clock restarts.
-    same = state.has_goal & ~give_up & (jnp.linalg.norm(xy - state.goal[:2]) <= params.blacklist_radius)
+    same = state.has_goal & ~drop & (jnp.linalg.norm(xy - state.goal[:2]) <= params.blacklist_radius)
     new_distance = jnp.linalg.norm(xy - pose[:2])
     state = ExploreState(
         blacklist=blacklist,
