@@ -11,7 +11,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from jaxquad.kernels.costmap import INSCRIBED, CostGrid
+from jaxquad.kernels.costmap import INSCRIBED, UNKNOWN, CostGrid
 from jaxquad.kernels.lie import R2, wrap_angle
 
 
@@ -23,6 +23,17 @@ def footprint_cost(
     R_world_base = R2(traj[..., 2])  # (S, T, 2, 2)
     p_world_disk = traj[..., None, :2] + jnp.einsum("stij,kj->stki", R_world_base, p_base_disk)
     return jnp.max(grid.cost_at(p_world_disk), axis=-1)
+
+
+def turn_is_clear(
+    pose: Float[Array, " 3"], grid: CostGrid, p_base_disk: Float[Array, "K 2"], n_headings: int = 32
+) -> Bool[Array, ""]:
+    """Whether a turn in place at `pose` keeps the footprint's covering disks off every known obstacle: below
+    inscribed cost at `n_headings` headings around the full circle (between two the disks move at most
+    |disk centre| x 2 pi / n_headings). Unknown cells do not block: turning is how a robot looks at them."""
+    yaw = pose[2] + jnp.arange(n_headings, dtype=jnp.float32) * (2.0 * jnp.pi / n_headings)
+    cost = grid.cost_at(pose[:2] + jnp.einsum("nij,kj->nki", R2(yaw), p_base_disk))  # (N, K)
+    return ~jnp.any((cost >= INSCRIBED) & (cost != UNKNOWN))
 
 
 def obstacle(

@@ -48,6 +48,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--map-range", type=float, default=4.0, help="readings beyond this are no-returns for the map, m (default 4)"
     )
     parser.add_argument(
+        "--footprint-padding",
+        type=float,
+        default=0.1,
+        help="margin added to the footprint's covering disks in the costmap, against the SLAM pose's error, m "
+        "(default 0.1)",
+    )
+    parser.add_argument(
         "--chunk-ticks",
         type=int,
         default=50,
@@ -83,6 +90,8 @@ def run(args: argparse.Namespace) -> int:
     for option, value in (("--seconds", args.seconds), ("--every", args.every), ("--map-range", args.map_range)):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"{option} must be a positive number, got {value}")
+    if not (math.isfinite(args.footprint_padding) and args.footprint_padding >= 0):
+        raise ValueError(f"--footprint-padding must be a number >= 0, got {args.footprint_padding}")
     check_output_dir(args.out, kind=SUMMARY_KIND)
     cfg = ExploreConfig(
         robot=args.robot,
@@ -97,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
         chunk_ticks=args.chunk_ticks,
         slam_params=args.slam_params,
         map_range=args.map_range,
+        footprint_padding=args.footprint_padding,
         trace_robots=max(args.plot_robots, 1),
         devices=args.devices,
     )

@@ -52,6 +52,9 @@ class ExploreConfig:
     slam_params: str | None = None  # SLAM parameter file (None: jaxquad/slam/slam.yaml)
     clearance: float = 0.75  # m from every box for the starts (a robot turning in place sweeps ~0.4 m)
     map_range: float = 4.0  # m: longer readings are no-returns for the map (depth noise, 1 % of z^2, is 16 cm at 4 m)
+    # m added to the footprint's covering disks in the costmap (the planner's and MPPI's inscribed radius): the
+    # SLAM pose is off by about 0.1 m (median), and the robot drove its disks to within a cell of mapped walls.
+    footprint_padding: float = 0.1
     spin_rate: float = 0.6  # rad/s, turning in place without a frontier goal
     finish_time: float = 12.0  # s without a frontier before exploration counts as finished (one turn and more)
     contacts: str = "truth"  # the estimator's contact source
@@ -69,6 +72,8 @@ class ExploreConfig:
         for name in ("seconds", "spin_rate", "finish_time", "map_range"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if not self.footprint_padding >= 0:
+            raise ValueError(f"footprint_padding must be >= 0, got {self.footprint_padding}")
         if self.chunk_ticks % REPLAN_TICKS:
             raise ValueError(f"chunk_ticks must be a multiple of {REPLAN_TICKS}, got {self.chunk_ticks}")
         self.slam_values()  # reads and checks the SLAM file now, before any heavy work
@@ -117,6 +122,9 @@ class ExploreResult:
 def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_dt: float) -> xl.ExploreLoopParams:
     body = body_params(fleet, loop.odometry, 0.2, SCAN_RANGE)
     nav_params = loop_nav_params(truth.grid.shape, cfg.samples, cfg.horizon, REPLAN_TICKS, tick_dt, body)
+    nav_params = eqx.tree_at(
+        lambda p: p.costmap.inscribed_radius, nav_params, nav_params.costmap.inscribed_radius + cfg.footprint_padding
+    )
     values = cfg.slam_values()
     T_bc = np.asarray(fleet.T_base_camera)
     grid = slam.grid_spec_like(truth, values["max_laser_range"])

@@ -10,8 +10,9 @@ other ticks) the SLAM map becomes a costmap, `jaxquad.nav.explore.update` picks 
 frontier (progress check and blacklist included) and the plan to it is read off the robot's own
 cost-to-go (`nav.plan_from_start`). Between plans MPPI follows it on that costmap. Without a frontier
 goal the robot turns in place (`spin_rate`) to look around: at the start, before its map has free
-cells, and when exploration seems done; exploration is finished when no frontier has been found for
-`finish_time` seconds of turning.
+cells, and when exploration seems done; it stands still instead where the turn would bring its footprint
+onto a known obstacle of the costmap (`kernels.critics.turn_is_clear`). Exploration is finished when no
+frontier has been found for `finish_time` seconds.
 
 Nothing from ground truth decides anything: the truth only judges. A run ends `collided` (the base
 footprint overlaps a world box), `lost` (the SLAM pose more than `lost_error` from the truth for
@@ -35,6 +36,7 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from jaxquad import slam
 from jaxquad.estimate.laser import planar_twist
+from jaxquad.kernels import critics
 from jaxquad.kernels.costmap import CostGrid
 from jaxquad.kernels.occupancy import occupancy_values
 from jaxquad.nav import explore
@@ -214,7 +216,8 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
         nav_state, ctrl = nav.step(
             params.nav, nav_state, nav.NavInputs(pose=s.pose, goal=ex.goal, grid=grid, key=k_nav)
         )
-        spin = jnp.array([0.0, 0.0, 1.0]) * params.spin_rate
+        can_turn = critics.turn_is_clear(s.pose, grid, params.nav.controller.footprint_disks)
+        spin = jnp.array([0.0, 0.0, 1.0]) * jnp.where(can_turn, params.spin_rate, 0.0)
         cmd = jnp.where(ex.has_goal, ctrl.cmd, spin)
         no_goal_for = jnp.where(ex.has_goal, 0.0, s.no_goal_for + tick_dt)
 
