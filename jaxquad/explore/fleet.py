@@ -101,6 +101,7 @@ class ExploreResult:
     world: object  # sim.worlds.World (ground truth)
     truth: object  # OccupancyMap: the world's true map, on the cells of the robots' maps
     reachable: np.ndarray  # (H, W) bool: true free cells connected to the starts (coverage's denominator)
+    clear: np.ndarray  # (H, W) bool: the reachable cells whose whole square is off every box (coverage_clear's)
     maps: np.ndarray  # (N, H, W) int8: each robot's final SLAM map (-1 unknown, 0..100)
     starts: np.ndarray  # (N, 3) x y yaw
     outcome: np.ndarray  # (N,) loop.OUTCOMES codes
@@ -117,6 +118,21 @@ class ExploreResult:
     compile_s: float
     run_s: float  # wall time of the chunks and of copying their outputs to the host, compilation excluded
     sim_s: float
+
+
+def clear_cells(world, truth, reachable: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the `reachable` cells of the map `truth` whose square overlaps none of `world`'s boxes (exact:
+    the separating-axis test of `kernels.footprint`). A cell a box's face passes through is free in the true map
+    when its centre is outside, yet holds the range returns off that face."""
+    from jaxquad.kernels.footprint import footprint_overlaps
+    from jaxquad.kernels.raycast import Boxes
+
+    boxes = Boxes(*(jnp.asarray(a, jnp.float32) for a in (world.center, world.half, world.yaw)))
+    xy = jnp.asarray(truth.cell_centers(), jnp.float32).reshape(-1, 2)
+    poses = jnp.concatenate([xy, jnp.zeros((xy.shape[0], 1), jnp.float32)], axis=1)
+    half = jnp.full(2, 0.5 * truth.resolution, jnp.float32)
+    hit = jax.jit(jax.vmap(lambda p: jnp.any(footprint_overlaps(boxes, p, half))))(poses)
+    return np.asarray(reachable) & ~np.asarray(hit).reshape(reachable.shape)
 
 
 def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_dt: float) -> xl.ExploreLoopParams:
@@ -198,6 +214,7 @@ def explore(cfg: ExploreConfig, starts: np.ndarray | None = None, progress=None)
     world = fleet.worlds[0]
     truth = occupancy_map(world)
     reachable = missions.reachable_cells(np.where(truth.grid == 0, 1.0, np.inf))
+    clear = clear_cells(world, truth, reachable)
     tick_dt = loop.frames_per_tick * fleet.frame_dt
     params = _params(cfg, loop, fleet, truth, tick_dt)
     if starts is None:
@@ -237,6 +254,7 @@ def explore(cfg: ExploreConfig, starts: np.ndarray | None = None, progress=None)
         world=world,
         truth=truth,
         reachable=reachable,
+        clear=clear,
         maps=maps,
         starts=starts,
         outcome=np.asarray(states.outcome)[:n],

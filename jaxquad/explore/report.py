@@ -2,7 +2,9 @@
 
 summary (JSON-ready dict): the configuration, loop and SLAM parameters used; `coverage` (each robot's
 final map: known-free cells among the true reachable free cells, over those cells; per robot and
-mean); `coverage_over_time` (sampled every `every` s: the map at the last tick at or before each
+mean); `coverage_clear` (the same over the reachable cells whose whole square is clear of every box: a
+cell a box's face passes through holds range returns, and no range-sensor map can show it free);
+`coverage_over_time` (sampled every `every` s: the map at the last tick at or before each
 time, held after a run ended); the map scores of each final map against the true map
 (`jaxquad.metrics.map_scores`: occupied-cell IoU, precision, recall within one cell); outcome
 counts and per-robot flags (explored, collided, lost, fallen); distance walked; the SLAM position
@@ -44,12 +46,12 @@ def coverage_samples(result, every: float = 5.0) -> tuple[np.ndarray, np.ndarray
     return times, result.coverage[k]
 
 
-def _final_coverage(result) -> np.ndarray:
-    """(N,) coverage of each robot's final map."""
+def _final_coverage(result, cells=None) -> np.ndarray:
+    """(N,) coverage of each robot's final map over `cells` (default: the reachable cells)."""
     import jax.numpy as jnp
 
-    reachable = jnp.asarray(result.reachable)
-    return np.array([float(coverage(jnp.asarray(m), reachable)) for m in result.maps])
+    cells = jnp.asarray(result.reachable if cells is None else cells)
+    return np.array([float(coverage(jnp.asarray(m), cells)) for m in result.maps])
 
 
 def final_maps(result) -> list:
@@ -64,6 +66,7 @@ def summarize(result, every: float = 5.0) -> dict:
 
     cfg, n = result.config, result.outcome.shape[0]
     final = _final_coverage(result)
+    final_clear = _final_coverage(result, result.clear)
     scores = [dataclasses.asdict(map_scores(m, result.truth)) for m in final_maps(result)]
     times, cov_t = coverage_samples(result, every)
     per_robot = []
@@ -78,6 +81,7 @@ def summarize(result, every: float = 5.0) -> dict:
                 **{flag: outcome == flag for flag in ("explored", "collided", "lost", "fallen")},
                 "end_s": None if np.isnan(result.end_t[i]) else float(result.end_t[i]),
                 "coverage": float(final[i]),
+                "coverage_clear": float(final_clear[i]),
                 "distance_m": float(result.distance[i]),
                 "slam_error_m": _stats(err),
                 "slam_nodes": int(result.nodes[i]),
@@ -94,6 +98,8 @@ def summarize(result, every: float = 5.0) -> dict:
         "robots": n,
         "reachable_free_m2": float(result.reachable.sum() * result.truth.resolution**2),
         "coverage": {**_stats(final), "per_robot": final.tolist()},
+        "clear_free_m2": float(result.clear.sum() * result.truth.resolution**2),
+        "coverage_clear": {**_stats(final_clear), "per_robot": final_clear.tolist()},
         "coverage_over_time": {
             "t_s": times.tolist(),
             "mean": cov_t.mean(axis=1).tolist(),
