@@ -7,10 +7,10 @@ nominal by their softmax-weighted mean (weights exp(-(cost - min cost) / tempera
 command is sent and the nominal shifted by one step. `dt` is both the model step and the control period.
 
 Goal: inside `goal_xy_tol` the robot turns to the goal yaw while a proportional step (`k_xy`, scaled to the
-speed limits; no obstacle check, so keep the tolerance small near obstacles) keeps closing the position error
-(as Nav2's MPPI keeps its goal critic on until the goal checker is satisfied, rather than stopping at the
-tolerance's edge); it has arrived when the yaw error is also inside `goal_yaw_tol` (0.25 m / 0.25 rad, the
-paper's tolerances).
+speed limits) keeps closing the position error (as Nav2's MPPI keeps its goal critic on until the goal checker
+is satisfied, rather than stopping at the tolerance's edge), where a turn in place keeps the footprint off known
+obstacles (`critics.turn_is_clear`); elsewhere the sampled commands, scored by the goal critics, go on; it has
+arrived when the yaw error is also inside `goal_yaw_tol` (0.25 m / 0.25 rad, the paper's tolerances).
 
 Stuck recovery (Nav2's progress checker, then a backup behaviour): when the robot has not moved
 `progress_radius` from its last progress point for `progress_timeout`, it backs up at `backup_speed` for
@@ -239,7 +239,8 @@ def step(params: MppiParams, state: MppiState, inputs: MppiInputs) -> tuple[Mppi
     turn = jnp.append(
         _toward(params, params.k_xy * p_base_goal), jnp.clip(params.k_yaw * yaw_err, params.v_min[2], params.v_max[2])
     )
-    cmd = jnp.where(at_xy, jnp.where(arrived, 0.0, turn), mppi_cmd)
+    turning = at_xy & critics.turn_is_clear(pose, inputs.grid, params.footprint_disks)
+    cmd = jnp.where(arrived, 0.0, jnp.where(turning, turn, mppi_cmd))
 
     # Progress checker and recovery.
     moved = jnp.linalg.norm(pose[:2] - state.anchor) > params.progress_radius
@@ -256,7 +257,7 @@ def step(params: MppiParams, state: MppiState, inputs: MppiInputs) -> tuple[Mppi
     anchor = jnp.where(recovering, pose[:2], anchor)
 
     cmd = jnp.where(valid, cmd, 0.0)
-    keep = valid & ~recovering & ~at_xy
+    keep = valid & ~recovering & ~turning & ~arrived
     shifted = jnp.concatenate([nominal[1:], nominal[-1:]], axis=0)
     new_state = MppiState(
         nominal=jnp.where(keep & ~ended, shifted, 0.0),

@@ -366,3 +366,29 @@ def test_turn_is_clear_matches_the_disks_distance_to_obstacles():
     assert inside[sure].any() and (~inside[sure]).any() and not got[inside & sure].all()
     got_unknown = np.asarray(check(jnp.asarray(poses, jnp.float32), unknown, disks))
     np.testing.assert_array_equal(got_unknown[sure], inside[sure])
+
+
+def test_goal_turn_next_to_an_obstacle_is_left_to_the_critics():
+    """At the goal's position beside the block, turning from facing along it to facing it would swing the Go2's
+    covering disks into the block's inscribed cells (the negative control, and its rectangle into the block); the
+    controller does not turn in place there, and its disks stay out of those cells. In the open the same goal is
+    the proportional turn."""
+    from jaxquad.kernels.critics import footprint_cost
+
+    center, half = jnp.array([-0.076, 0.0]), jnp.array([0.315, 0.17])
+    disks, radius = footprint_disks(center, half)
+    params = eqx.tree_at(lambda p: p.footprint_disks, PARAMS, disks)
+    grid = _world(float(radius))
+    block = Boxes(jnp.array([[2.0, 2.0, 0.5]]), jnp.array([[0.25, 0.75, 0.5]]), jnp.zeros(1))
+    pose = jnp.array([1.52, 2.0, math.pi / 2])  # base 0.23 m from the block's face, long axis along it
+    sweep = jnp.stack([jnp.full(64, 1.52), jnp.full(64, 2.0), jnp.linspace(math.pi / 2, 0.0, 64)], -1)
+    assert np.asarray(_touches(block, sweep, center, half)).any()  # turning in place there hits the block
+    assert np.asarray(footprint_cost(sweep[None], grid, disks)).max() >= INSCRIBED
+    assert np.asarray(footprint_cost(pose[None, None], grid, disks)).max() < INSCRIBED
+    goal = pose.at[2].set(0.0)
+    poses, _, cmds = _closed_loop(grid, pose, goal, jax.random.key(0), params)
+    assert np.asarray(footprint_cost(poses[None], grid, disks)).max() < INSCRIBED
+    assert not np.allclose(np.asarray(cmds[0]), [0.0, 0.0, -0.8], atol=1e-3)
+    free = jnp.array([0.9, 2.0, math.pi / 2])
+    _, _, cmds = _closed_loop(grid, free, free.at[2].set(0.0), jax.random.key(0), params)
+    np.testing.assert_allclose(np.asarray(cmds[0]), [0.0, 0.0, -0.8], atol=1e-6)  # k_yaw x -pi/2, clipped

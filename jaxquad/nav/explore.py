@@ -102,7 +102,10 @@ def update(
     if value is None:
         _, value = robot_value(params, grid, pose)
     keep = disk & state.has_goal & ~drop
-    choice = choose_frontier(occupancy, grid.resolution, value, blacklist, params.frontier, keep)
+    # A goal already within reach of the robot is one it stands at without seeing (it would also turn there).
+    r = grid.cell_of(pose[:2])
+    here = ((rr - r[0]) ** 2 + (cc - r[1]) ** 2).astype(jnp.float32) <= (params.reach_radius / grid.resolution) ** 2
+    choice = choose_frontier(occupancy, grid.resolution, value, blacklist | here, params.frontier, keep)
 
     xy = grid.center_of(choice.goal_rc)
     goal = jnp.append(xy, jnp.arctan2(xy[1] - pose[1], xy[0] - pose[0]))
