@@ -14,6 +14,7 @@ from _laser2d import cast
 from test_slam_online import BEARINGS, LOOP, WORLD, _ate, _drifted, _inputs, _spec
 
 from jaxquad.slam import SlamParams, final_poses, online, run_fleet
+from jaxquad.slam import init as slam_init
 
 
 def _exp(xi):
@@ -55,7 +56,7 @@ def test_chain_covariance_matches_monte_carlo():
     for k in range(1, n):
         poses.append(_compose(poses[-1], links[k]))
     poses = np.array(poses)
-    state = online.init(_spec("preintegrated"), SlamParams(), jnp.asarray(BEARINGS))
+    state = slam_init(_spec("preintegrated"), SlamParams(), jnp.asarray(BEARINGS))
     cap = state.graph.poses.shape[0]
     pad = lambda x: jnp.asarray(np.concatenate([x, np.zeros((cap - n, *x.shape[1:]))]), jnp.float32)  # noqa: E731
     state = eqx.tree_at(

@@ -4,18 +4,14 @@ from jaxquad.estimate.attitude import AttitudeParams, AttitudeState, attitude_fr
 from jaxquad.estimate.differentiate import DifferentiatorParams, DifferentiatorState, joint_velocities
 from jaxquad.estimate.inputs import CONTACT_SOURCES, RobotInputs, check_log, full_state, robot_inputs
 from jaxquad.estimate.odometry import Pose, integrate_twist, odometry_step, se3_exp
-from jaxquad.estimate.pipeline import (
+from jaxquad.estimate.pipeline import estimate_fleet, estimate_robot, inputs_from_log, pipeline_init, pipeline_step
+from jaxquad.estimate.pipeline_types import (
     Estimate,
     Flags,
     PipelineConfig,
     PipelineParams,
     PipelineSample,
     PipelineState,
-    estimate_fleet,
-    estimate_robot,
-    inputs_from_log,
-    pipeline_init,
-    pipeline_step,
 )
 from jaxquad.estimate.run import estimate_log, load_params, run_estimate
 from jaxquad.estimate.scores import (

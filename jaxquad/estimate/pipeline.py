@@ -58,22 +58,6 @@ from jaxquad.kernels import ContactEstimate, ContactObserver, ObserverParams, ro
 from jaxquad.kernels import floor as flr
 from jaxquad.kernels.lie import SO3, rotation_matrix
 
-__all__ = [
-    "Estimate",
-    "Flags",
-    "PipelineConfig",
-    "PipelineParams",
-    "PipelineSample",
-    "PipelineState",
-    "estimate_fleet",
-    "estimate_robot",
-    "inputs_from_log",
-    "observer_params_for_axes",
-    "pipeline_init",
-    "pipeline_step",
-    "vertical_estimate",
-]
-
 
 def observer_params_for_axes(params: ObserverParams, axes: str) -> ObserverParams:
     """Observer numbers for force rows of `axes` per foot: for "xyz" every per-foot number is repeated

@@ -1,6 +1,6 @@
 """Online 2D graph SLAM with leg-odometry constraints (Karto / slam_toolbox style), one robot per call.
 
-    state = init(spec, params, bearings)
+    state = init(spec, params, bearings)                 # jaxquad.slam.state: the pytrees and init
     state, out = step(spec, params, state, inputs)      # once per scan, in time order
     state = finish(spec, params, state)                  # last optimization and map
 
@@ -67,33 +67,12 @@ from jaxquad.slam.state import (
     EDGE_LOOP,
     EDGE_MATCH,
     EDGE_ODOMETRY,
-    LO_CONSTRAINTS,
     SlamInputs,
     SlamOutput,
     SlamParams,
     SlamSpec,
     SlamState,
-    init,
 )
-
-__all__ = [
-    "EDGE_LEG",
-    "EDGE_LOOP",
-    "EDGE_MATCH",
-    "EDGE_ODOMETRY",
-    "LO_CONSTRAINTS",
-    "SlamInputs",
-    "SlamOutput",
-    "SlamParams",
-    "SlamSpec",
-    "SlamState",
-    "chain_covariance",
-    "finish",
-    "init",
-    "refresh_map",
-    "scan_poses",
-    "step",
-]
 
 
 def _sensor(params: SlamParams, base: Float[Array, "*n 3"]) -> Float[Array, "*n 3"]:

@@ -14,7 +14,7 @@ from jaxquad.kernels.loop_closure import LoopParams, LoopSpec
 from jaxquad.kernels.occupancy import GridSpec, OccupancyParams
 from jaxquad.kernels.posegraph import SolverParams
 from jaxquad.kernels.scan_grid import MatchParams, MatchSpec, cells_for_range
-from jaxquad.slam.online import SlamParams, SlamSpec
+from jaxquad.slam.state import SlamParams, SlamSpec
 
 DEFAULTS_FILE = Path(__file__).with_name("slam.yaml")
 _INTEGER = (

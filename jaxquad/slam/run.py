@@ -21,6 +21,7 @@ from jaxquad import parallel
 from jaxquad.io.carmen import LaserLog
 from jaxquad.kernels.occupancy import GridSpec
 from jaxquad.slam import online
+from jaxquad.slam import state as slam_state
 from jaxquad.slam.mapping import grid_spec
 
 # Scans per jitted call: long enough to amortize dispatch, short enough for a live progress bar.
@@ -99,7 +100,7 @@ def _compiled(spec: online.SlamSpec, mesh):
         return jax.lax.scan(lambda s, i: online.step(spec, params, s, i), state, inputs)
 
     def init(params, bearings, n: int):
-        fn = lambda params, bearings: jax.vmap(lambda _: online.init(spec, params, bearings))(jnp.arange(n))  # noqa: E731
+        fn = lambda params, bearings: jax.vmap(lambda _: slam_state.init(spec, params, bearings))(jnp.arange(n))  # noqa: E731
         return parallel.shard_batched(fn, mesh, (None, None), 0)(params, bearings)
 
     chunk = parallel.shard_batched(jax.vmap(one, in_axes=(None, 0, 0)), mesh, (None, 0, 0), 0)
