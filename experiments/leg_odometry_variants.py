@@ -30,6 +30,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
+import os
 import sys
 
 import numpy as np
@@ -151,6 +153,20 @@ def main(argv=None) -> int:
     )
     ap.add_argument("--json", default=None, help="also write the rows to this JSON file")
     args = ap.parse_args(argv)
+    # One-line errors before any simulation or compile.
+    missing = [log for log in args.logs if not os.path.isfile(log)]
+    if missing:
+        ap.error(f"log file(s) not found: {', '.join(missing)}")
+    bad = [s for s in args.sigma_prior if s is not None and not (math.isfinite(s) and s > 0)]
+    if bad:
+        ap.error(f"--sigma-prior values must be positive, got {bad}")
+    if args.json:
+        from jaxquad.io.atomic import check_output_file
+
+        try:
+            check_output_file(args.json, "--json")
+        except ValueError as e:
+            ap.error(str(e))
     import platform
     import shlex
 
