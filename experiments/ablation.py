@@ -83,13 +83,14 @@ def _variant_inputs(log, est, robot, variants, values: dict, every: int) -> dict
     from jaxquad.slam.variants import VARIANTS
 
     rmax = values["max_laser_range"]
-    base = leg_laser_inputs(log, est, "stabilized", 5, 0.2, rmax, values["leg_yaw_rate_std"])
+    # The paper's scans keep the minimum of the band (as `jaxquad slam --variant` does).
+    base = leg_laser_inputs(log, est, "stabilized", 5, 0.2, rmax, values["leg_yaw_rate_std"], "min")
     # `base` already holds the stabilized scans and the leg-inertial odometry: each is computed once.
     scans, odom = {"stabilized": (base["ranges"], base["bearings"])}, {"lo": base["odom"]}
     for name in variants:
         v = VARIANTS[name]
         if v.scans not in scans:
-            scans[v.scans] = scan_ranges(log, est, v.scans, 5, 0.2, rmax)
+            scans[v.scans] = scan_ranges(log, est, v.scans, 5, 0.2, rmax, "min")
         key = "lo" if v.odometry == "lo" else v.vo_coupling
         if key not in odom:
             odom[key] = visual_odometry_2d(log, est, robot, v.vo_coupling)

@@ -45,6 +45,8 @@ def run_cell(args, robot: str, world: str, variant: str) -> dict:
         seed=args.seed,
         samples=args.samples,
         horizon=args.horizon,
+        band_height=args.band_height,
+        band_reduce=args.band_reduce,
         trace_robots=4,
         devices=args.devices,
     )
@@ -137,14 +139,16 @@ def main() -> int:
     p.add_argument("--samples", type=int, default=256, help="MPPI samples (default 256)")
     p.add_argument("--horizon", type=int, default=30, help="MPPI horizon in ticks (default 30)")
     p.add_argument("--every", type=float, default=5.0, help="coverage sampling period, s (default 5)")
+    p.add_argument("--band-height", type=int, default=1, help="scan band height in px (default 1)")
+    p.add_argument("--band-reduce", choices=("median", "min"), default="median", help="band reduction (default median)")
     p.add_argument(
         "--devices", type=int, default=None, help="split each cell's robots over the first N devices (default all)"
     )
     p.add_argument("--json", default=None, help="write the rows as JSON here (default: stdout only)")
     p.add_argument("--figures", default=None, help="folder for coverage_vs_time.png (default: none)")
     args = p.parse_args()
-    if args.runs < 1 or (args.seconds is not None and not args.seconds > 0) or not args.every > 0:
-        p.error("--runs must be >= 1 and --seconds, --every positive")
+    if min(args.runs, args.band_height) < 1 or not (args.seconds is None or args.seconds > 0) or not args.every > 0:
+        p.error("--runs and --band-height must be >= 1 and --seconds, --every positive")
     from jaxquad.io.atomic import atomic_write_text, check_output_dir, check_output_file
     from jaxquad.io.jsonfile import to_json
 

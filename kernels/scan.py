@@ -14,6 +14,13 @@ Conventions.
   expects: the bearing of column u is atan2(-(u - c_x), f_x), so it decreases with u.
   A pixel whose depth is 0, NaN or inf, or whose range is outside [range_min, range_max], is
   invalid; a ray with no valid pixel reads +inf.
+
+Band reduction (`band_reduce`, static) of the column scans: "min", the ROS depthimage_to_laserscan
+rule the paper's scans use (a thin obstacle seen by one row of the band is kept), or "median" of the
+column's valid readings (the mean of the two middle ones for an even count). With independent
+per-pixel depth noise of std sigma the minimum of h readings is biased short, by about 1.16 sigma for
+h = 5: on the simulated D435 noise (sigma = 1 % of z^2) that is -0.17 m at 4-5 m, a phantom wall
+3 cells in front of the true one; the median is unbiased.
 """
 
 from __future__ import annotations
@@ -26,6 +33,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from jaxquad.kernels.lie import R_level_base
+
+BAND_REDUCTIONS = ("min", "median")
 
 
 class CameraIntrinsics(eqx.Module):
@@ -57,7 +66,9 @@ def _unpack(intrinsics: Intrinsics) -> tuple[Array, Array, Array, Array]:
     return tuple(jnp.asarray(c, dtype=jnp.float32) for c in (fx, fy, cx, cy))
 
 
-def _check_image(depth: ArrayLike, band_height: int) -> None:
+def _check_image(depth: ArrayLike, band_height: int, band_reduce: str = "min") -> None:
+    if band_reduce not in BAND_REDUCTIONS:
+        raise ValueError(f"band_reduce must be one of {BAND_REDUCTIONS}, got {band_reduce!r}")
     if depth.ndim != 2:
         raise ValueError(f"depth must be an H x W image, got shape {depth.shape}")
     if not 1 <= band_height <= depth.shape[0]:
@@ -89,14 +100,24 @@ def _band_depth(depth: ArrayLike, rows: Array) -> tuple[Array, Array]:
     return _readings(z, inside)
 
 
-def _column_scan(z: Array, good: Array, u: Array, fx: Array, cx: Array, range_min, range_max) -> Scan:
-    """One ray per column: the minimum valid camera-frame range sqrt(x^2 + z^2), x = (u - c_x) z / f_x,
-    over the band's rows (axis 0)."""
+def _band_median(r: Array, valid: Array) -> Array:
+    """Median over axis 0 of the valid entries (+inf where none): sorted, invalid (+inf) ones last."""
+    s = jnp.sort(jnp.where(valid, r, jnp.inf), axis=0)
+    n = jnp.sum(valid, axis=0)
+    lo = jnp.take_along_axis(s, jnp.maximum(n - 1, 0)[None] // 2, axis=0)[0]
+    hi = jnp.take_along_axis(s, jnp.minimum(n // 2, r.shape[0] - 1)[None], axis=0)[0]
+    return jnp.where(n > 0, 0.5 * (lo + hi), jnp.inf)
+
+
+def _column_scan(z: Array, good: Array, u: Array, fx: Array, cx: Array, range_min, range_max, band_reduce: str) -> Scan:
+    """One ray per column: the minimum (or median, `band_reduce`) valid camera-frame range
+    sqrt(x^2 + z^2), x = (u - c_x) z / f_x, over the band's rows (axis 0)."""
     x = (u - cx) * z / fx
     r = jnp.sqrt(x * x + z * z)
     valid = good & (r >= range_min) & (r <= range_max)
+    reduced = jnp.min(jnp.where(valid, r, jnp.inf), axis=0) if band_reduce == "min" else _band_median(r, valid)
     return Scan(
-        ranges=jnp.min(jnp.where(valid, r, jnp.inf), axis=0),
+        ranges=reduced,
         bearings=jnp.arctan2(-(u - cx), fx),
         range_min=jnp.asarray(range_min, jnp.float32),
         range_max=jnp.asarray(range_max, jnp.float32),
@@ -111,22 +132,24 @@ def stabilized_scan(
     band_height: int,
     range_min: Float[ArrayLike, ""] = 0.2,
     range_max: Float[ArrayLike, ""] = 8.0,
+    band_reduce: str = "min",
 ) -> Scan:
     """IMU-stabilized scan, one ray per image column (the slicing definition of facts.md Sec. 3).
 
     Base rows o = floor(c_y - h/2) + k, k = 0..h-1; column u samples rows
     v = round(o + (u - c_x) tan(-roll) - f_y tan(pitch)) (rows outside the image are skipped) and keeps
-    the minimum valid camera-frame range sqrt(x^2 + z^2), x = (u - c_x) z / f_x. `band_height` is
-    static; everything else may be traced. Rounding is half-to-even.
+    the minimum (`band_reduce` "min", the paper's rule) or median valid camera-frame range
+    sqrt(x^2 + z^2), x = (u - c_x) z / f_x. `band_height` and `band_reduce` are static; everything else
+    may be traced. Rounding is half-to-even.
     """
-    _check_image(depth, band_height)
+    _check_image(depth, band_height, band_reduce)
     fx, fy, cx, cy = _unpack(intrinsics)
     u = jnp.arange(depth.shape[1], dtype=jnp.float32)
     base_rows = jnp.floor(cy - band_height / 2) + jnp.arange(band_height, dtype=jnp.float32)
     shift = (u - cx) * jnp.tan(-roll) - fy * jnp.tan(pitch)
     rows = jnp.round(base_rows[:, None] + shift[None, :])
     z, good = _band_depth(depth, rows)
-    return _column_scan(z, good, u, fx, cx, range_min, range_max)
+    return _column_scan(z, good, u, fx, cx, range_min, range_max, band_reduce)
 
 
 def baseline_scan(
@@ -135,10 +158,11 @@ def baseline_scan(
     band_height: int,
     range_min: Float[ArrayLike, ""] = 0.2,
     range_max: Float[ArrayLike, ""] = 8.0,
+    band_reduce: str = "min",
 ) -> Scan:
     """Unstabilized scan (ROS depthimage_to_laserscan): the band of `stabilized_scan` at zero roll and
     pitch, rows floor(c_y - h/2) + k in every column, read as one contiguous slice of the image."""
-    _check_image(depth, band_height)
+    _check_image(depth, band_height, band_reduce)
     fx, _, cx, cy = _unpack(intrinsics)
     height = depth.shape[0]
     first = jnp.floor(cy - band_height / 2)
@@ -149,7 +173,7 @@ def baseline_scan(
     band = jax.lax.dynamic_slice_in_dim(depth, start.astype(jnp.int32), band_height, axis=0)
     z, good = _readings(band, ((rows >= first) & (rows <= first + band_height - 1))[:, None])
     u = jnp.arange(depth.shape[1], dtype=jnp.float32)
-    return _column_scan(z, good, u, fx, cx, range_min, range_max)
+    return _column_scan(z, good, u, fx, cx, range_min, range_max, band_reduce)
 
 
 def level_scan(

@@ -4,11 +4,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from scipy.ndimage import binary_dilation
 
 from jaxquad.io.maps import OccupancyMap
 from jaxquad.kernels.occupancy import OccupancyParams, map_from_scans
 from jaxquad.kernels.raycast import Boxes, ray_distance
-from jaxquad.metrics import map_scores, resample_map
+from jaxquad.metrics import cells_in_view, map_scores, resample_map
 from jaxquad.sim.worlds import make_world, occupancy_map
 from jaxquad.slam.mapping import grid_spec_like, to_occupancy_map
 
@@ -61,6 +62,74 @@ def test_resampling_matches_a_cell_by_cell_loop():
     assert np.array_equal(out.grid, ref)
     with pytest.raises(ValueError, match="yaw 0"):
         map_scores(OccupancyMap(like.grid, 0.05, (0.0, 0.0, 0.3)), like)
+
+
+def _first_hit_dda(occ: OccupancyMap, x, y, angle, range_max):
+    """The first occupied cell along one ray by exact grid traversal (Amanatides & Woo), or None."""
+    res, (ox, oy, _) = occ.resolution, occ.origin
+    dx, dy = np.cos(angle), np.sin(angle)
+    c, r = int(np.floor((x - ox) / res)), int(np.floor((y - oy) / res))
+    step_c, step_r = (1 if dx > 0 else -1), (1 if dy > 0 else -1)
+    next_x = ox + (c + (dx > 0)) * res
+    next_y = oy + (r + (dy > 0)) * res
+    t_x = (next_x - x) / dx if dx != 0 else np.inf
+    t_y = (next_y - y) / dy if dy != 0 else np.inf
+    dt_x, dt_y = (res / abs(dx) if dx != 0 else np.inf), (res / abs(dy) if dy != 0 else np.inf)
+    t = 0.0
+    while t < range_max:
+        if not (0 <= r < occ.grid.shape[0] and 0 <= c < occ.grid.shape[1]):
+            return None
+        if occ.grid[r, c] > 65:
+            return r, c
+        if t_x < t_y:
+            t, t_x, c = t_x, t_x + dt_x, c + step_c
+        else:
+            t, t_y, r = t_y, t_y + dt_y, r + step_r
+    return None
+
+
+def test_cells_in_view_are_the_first_cells_hit():
+    truth = _room()
+    rng = np.random.default_rng(1)
+    # Sensor poses inside the room, clear of the pillar; a 90 deg fan of 40 beams.
+    xy = truth.origin[:2] + (np.array([6.5, 6.5]) + rng.uniform(0, 10, (6, 2))) * truth.resolution
+    poses = np.c_[xy, rng.uniform(-np.pi, np.pi, 6)]
+    bearings = np.linspace(-np.pi / 4, np.pi / 4, 40)
+    got = cells_in_view(truth, poses, bearings, 1.0, step_cells=0.02)
+    ref = np.zeros_like(got)
+    for px, py, yaw in poses:
+        for b in bearings:
+            hit = _first_hit_dda(truth, px, py, yaw + b, 1.0)
+            if hit is not None:
+                ref[hit] = True
+    assert ref.sum() > 30 and np.all(truth.grid[got] == 100)
+    # Fine steps cut a cell corner only in rare ties: nearly the same cells, none far from the reference.
+    assert (got ^ ref).sum() <= 0.03 * ref.sum()
+    assert np.all(binary_dilation(ref, np.ones((3, 3), bool))[got])
+    # A beam that does not reach a wall within range_max sees nothing.
+    assert not cells_in_view(truth, poses[:1], bearings, 0.01).any()
+
+
+def test_in_view_scores_count_only_the_walls_faced():
+    truth = _room()
+    left_wall = np.zeros(truth.grid.shape, bool)
+    left_wall[6:34, 5] = True
+    est = np.full(truth.grid.shape, -1, np.int8)
+    est[6:34, 6:12] = 0
+    est[6:34, 5] = 100  # the one wall it faced, drawn exactly
+    s = map_scores(OccupancyMap(est, truth.resolution, truth.origin), truth, in_view=left_wall)
+    # Whole-map recall also credits the two cells of the floor and ceiling walls next to its ends.
+    assert s.precision == 1.0 and s.recall == pytest.approx(30 / 124) and s.iou == pytest.approx(28 / (28 + 94))
+    assert (s.recall_in_view, s.iou_in_view, s.n_true_in_view) == (1.0, 1.0, 28)
+    # Drawing nothing scores 0, not NaN or 1; drawing a phantom costs precision and in-view IoU alike.
+    empty = map_scores(OccupancyMap(np.where(est == 100, 0, est), truth.resolution, truth.origin), truth, left_wall)
+    assert empty.iou_in_view == 0.0 and empty.recall_in_view == 0.0
+    est[20, 9] = 100
+    s = map_scores(OccupancyMap(est, truth.resolution, truth.origin), truth, in_view=left_wall)
+    assert s.iou_in_view == pytest.approx(28 / 29)
+    assert np.isnan(map_scores(truth, truth).iou_in_view)
+    with pytest.raises(ValueError, match="in_view"):
+        map_scores(truth, truth, in_view=left_wall[:10])
 
 
 def test_simulated_house_map_and_pose_errors():

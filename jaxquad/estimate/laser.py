@@ -17,6 +17,7 @@ import numpy as np
 
 from jaxquad.estimate.scans import frame_samples, log_scans
 from jaxquad.kernels.lie import R_level_base, roll_pitch, yaw_of
+from jaxquad.kernels.scan import BAND_REDUCTIONS
 
 SCAN_KINDS = ("stabilized", "baseline", "level")
 
@@ -47,10 +48,17 @@ def _fleet_axis(log: Mapping, key: str) -> np.ndarray:
 
 
 def scan_ranges(
-    log: Mapping, est, scans: str = "stabilized", band_height: int = 5, range_min: float = 0.2, range_max: float = 8.0
+    log: Mapping,
+    est,
+    scans: str = "stabilized",
+    band_height: int = 5,
+    range_min: float = 0.2,
+    range_max: float = 8.0,
+    band_reduce: str = "median",
 ) -> tuple[np.ndarray, np.ndarray]:
     """ranges (N, F, W) m of the `scans` kind at the depth frames, sliced with the estimator's attitude
-    `est.q_world_base`, and their bearings (W,) rad."""
+    `est.q_world_base`, and their bearings (W,) rad; `band_reduce` as `jaxquad.kernels.scan` says
+    (the median of the band by default; "min" is the paper's rule, biased short by noisy depth)."""
     if scans not in SCAN_KINDS:
         raise ValueError(f"scans must be one of {SCAN_KINDS}, got {scans!r}")
     t, depth_t = np.asarray(log["t"], np.float64), np.asarray(log["depth_t"], np.float64)
@@ -67,6 +75,7 @@ def scan_ranges(
             range_min,
             range_max,
             level=scans == "level",
+            band_reduce=band_reduce,
         )
         r, b = {
             "stabilized": (sc.ranges_stabilized, sc.bearings),
@@ -101,6 +110,7 @@ def laser_inputs(
     odometry: str = "lo",
     vo_coupling: str = "guess+restart",
     devices: int | None = None,
+    band_reduce: str = "median",
 ) -> dict:
     """Per robot (leading axis N) at the F depth frames: t (F,) s, odom (N, F, 3) x y yaw, ranges (N, F, W)
     m of the `scans` kind, bearings (W,) rad, T_base_laser (3,), valid (N, F), lo_twist (N, F, 3) planar
@@ -118,6 +128,8 @@ def laser_inputs(
 
     if scans not in SCAN_KINDS:
         raise ValueError(f"scans must be one of {SCAN_KINDS}, got {scans!r}")
+    if band_reduce not in BAND_REDUCTIONS:
+        raise ValueError(f"band_reduce must be one of {BAND_REDUCTIONS}, got {band_reduce!r}")
     if odometry not in ODOMETRY_KINDS or vo_coupling not in COUPLINGS:
         raise ValueError(
             f"odometry must be one of {ODOMETRY_KINDS} and vo_coupling one of {COUPLINGS}, "
@@ -131,7 +143,7 @@ def laser_inputs(
     if progress is not None:
         progress(0, len(log["depth_t"]))
     _, _, est = estimate_log(log, contacts, obs, robot, devices=devices)
-    x = leg_laser_inputs(log, est, scans, band_height, range_min, range_max, yaw_rate_std)
+    x = leg_laser_inputs(log, est, scans, band_height, range_min, range_max, yaw_rate_std, band_reduce)
     if odometry == "vo":
         x["odom"] = visual_odometry_2d(log, est, robot, vo_coupling)
     return x
@@ -145,13 +157,14 @@ def leg_laser_inputs(
     range_min: float = 0.2,
     range_max: float = 8.0,
     yaw_rate_std: float = 0.02,
+    band_reduce: str = "median",
 ) -> dict:
     """`laser_inputs` from the estimator's output `est` on `log` (`jaxquad.estimate.estimate_log`), with
     the leg-inertial odometry as odom: what variants of one log share (see `jaxquad.slam.variants`)."""
     t, depth_t = np.asarray(log["t"], np.float64), np.asarray(log["depth_t"], np.float64)
     k = frame_samples(t, depth_t)
     n = est.p_world_base.shape[0]
-    ranges, bearings = scan_ranges(log, est, scans, band_height, range_min, range_max)
+    ranges, bearings = scan_ranges(log, est, scans, band_height, range_min, range_max, band_reduce)
     twist, twist_cov = _planar_twist(
         jnp.asarray(est.q_world_base[:, k].reshape(-1, 4), jnp.float32),
         jnp.asarray(est.v_base[:, k].reshape(-1, 3), jnp.float32),

@@ -142,12 +142,13 @@ def estimate_and_score(
     source: str | None = None,
     odometry: dict | None = None,
     devices: int | None = None,
+    band_reduce: str = "median",
 ) -> EstimateRun:
     """Estimate over `log`, slice its depth frames into scans, score against its ground truth.
 
-    params: PipelineParams (the paper's defaults if None); band_height (px) and range_min/range_max
-    (m) configure the scans; source: where the log came from, for the summary; odometry and devices as
-    `estimate_log`."""
+    params: PipelineParams (the paper's defaults if None); band_height (px), range_min/range_max (m)
+    and band_reduce (`jaxquad.kernels.scan`) configure the scans; source: where the log came from, for
+    the summary; odometry and devices as `estimate_log`."""
     from jaxquad.estimate.inputs import check_log
     from jaxquad.io.jsonfile import json_ready
     from jaxquad.io.params import observer_params_dict
@@ -171,7 +172,12 @@ def estimate_and_score(
         "config": dataclasses.asdict(config),
         "samples": int(t.size),
         "duration_s": float(t[-1] - t[0]),
-        "scans": {"band_height_px": band_height, "range_min_m": range_min, "range_max_m": range_max},
+        "scans": {
+            "band_height_px": band_height,
+            "band_reduce": band_reduce,
+            "range_min_m": range_min,
+            "range_max_m": range_max,
+        },
         "params": json_ready(params),
         "robots": [],
     }
@@ -196,6 +202,7 @@ def estimate_and_score(
                     band_height,
                     range_min,
                     range_max,
+                    band_reduce=band_reduce,
                 )
             )
         log_i = {k: (np.asarray(v)[i] if fleet else v) for k, v in log.items() if k.startswith("gt_")}
@@ -254,6 +261,7 @@ def run_estimate(
     range_max: float = 8.0,
     odometry: dict | None = None,
     devices: int | None = None,
+    band_reduce: str = "median",
 ) -> dict:
     """Estimate over `log` (a path to a `.npz`, or a log mapping such as a `jaxquad.sim.FleetLog`),
     write the output folder `out_dir` (checked first; replaced whole when complete, if it holds an
@@ -270,7 +278,7 @@ def run_estimate(
     robot = load(str(np.asarray(log["robot"])))
     params = load_params(params_path, len(robot.foot_names), contacts)
     run = estimate_and_score(
-        log, contacts, params, progress, band_height, range_min, range_max, source, odometry, devices
+        log, contacts, params, progress, band_height, range_min, range_max, source, odometry, devices, band_reduce
     )
     if params_path is not None:
         run.summary["params_file"] = str(params_path)

@@ -33,10 +33,12 @@ class LogScans(eqx.Module):
     bearings_level: Float[Array, "W"] | None = None  # rad, its bin centres
 
 
-@functools.partial(jax.jit, static_argnames=("band_height",))
-def _slice(depth, intrinsics, roll, pitch, band_height, range_min, range_max):
-    stab = jax.vmap(lambda d, r, p: stabilized_scan(d, intrinsics, r, p, band_height, range_min, range_max))
-    base = jax.vmap(lambda d: baseline_scan(d, intrinsics, band_height, range_min, range_max))
+@functools.partial(jax.jit, static_argnames=("band_height", "band_reduce"))
+def _slice(depth, intrinsics, roll, pitch, band_height, range_min, range_max, band_reduce):
+    stab = jax.vmap(
+        lambda d, r, p: stabilized_scan(d, intrinsics, r, p, band_height, range_min, range_max, band_reduce)
+    )
+    base = jax.vmap(lambda d: baseline_scan(d, intrinsics, band_height, range_min, range_max, band_reduce))
     s, b = stab(depth, roll, pitch), base(depth)
     return s.ranges, b.ranges, s.bearings[0]
 
@@ -65,9 +67,11 @@ def log_scans(
     range_min: float = 0.2,
     range_max: float = 8.0,
     level: bool = False,
+    band_reduce: str = "median",
 ) -> LogScans:
     """Scans of depth (F, H, W) at depth_t (F,) s, attitude q_world_base (T, 4) at t (T,) s; `level`
-    adds the gravity-levelled scan."""
+    adds the gravity-levelled scan (always the minimum per bin); `band_reduce` ("median" or the paper's
+    "min", see `jaxquad.kernels.scan`) reduces the stabilized and baseline bands."""
     k = frame_samples(t, depth_t)
     roll, pitch = roll_pitch(jnp.asarray(q_world_base[k], jnp.float32))
     intr = CameraIntrinsics(*(jnp.asarray(K[i, j], jnp.float32) for i, j in ((0, 0), (1, 1), (0, 2), (1, 2))))
@@ -79,6 +83,7 @@ def log_scans(
         band_height,
         jnp.asarray(range_min, jnp.float32),
         jnp.asarray(range_max, jnp.float32),
+        band_reduce,
     )
     extra = {}
     if level:

@@ -54,6 +54,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="margin added to the footprint's covering disks in the costmap, against the SLAM pose's error, m "
         "(default 0.1)",
     )
+    parser.add_argument("--band-height", type=int, default=1, help="scan band height in px (default 1)")
+    parser.add_argument(
+        "--band-reduce",
+        choices=("median", "min"),
+        default="median",
+        help="each scan ray's range from its band: the median, or the paper's minimum (biased short by depth "
+        "noise) (default median)",
+    )
     parser.add_argument(
         "--chunk-ticks",
         type=int,
@@ -82,6 +90,7 @@ def run(args: argparse.Namespace) -> int:
         ("--horizon", args.horizon),
         ("--chunk-ticks", args.chunk_ticks),
         ("--plot-robots", args.plot_robots),
+        ("--band-height", args.band_height),
     ):
         if value < 1:
             raise ValueError(f"{option} must be >= 1, got {value}")
@@ -107,6 +116,8 @@ def run(args: argparse.Namespace) -> int:
         slam_params=args.slam_params,
         map_range=args.map_range,
         footprint_padding=args.footprint_padding,
+        band_height=args.band_height,
+        band_reduce=args.band_reduce,
         trace_robots=max(args.plot_robots, 1),
         devices=args.devices,
     )

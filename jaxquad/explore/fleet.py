@@ -59,6 +59,7 @@ class ExploreConfig:
     finish_time: float = 12.0  # s without a frontier before exploration counts as finished (one turn and more)
     contacts: str = "truth"  # the estimator's contact source
     band_height: int = 1  # scan band rows
+    band_reduce: str = "median"  # each ray's range from its band: "median" or the paper's "min" (kernels.scan)
     randomize: bool = True  # per-robot masses, friction, motors and noise levels
     trace_robots: int = 8  # robots whose paths are kept in the result
     devices: int | None = None  # devices the robots are split over (`jaxquad.parallel.mesh`); None: all local ones
@@ -81,7 +82,12 @@ class ExploreConfig:
     def loop_config(self) -> xl.ExploreLoopConfig:
         odometry, scans, lo = VARIANTS[self.variant]
         return xl.ExploreLoopConfig(
-            odometry=odometry, scans=scans, lo_constraints=lo, band_height=self.band_height, contacts=self.contacts
+            odometry=odometry,
+            scans=scans,
+            lo_constraints=lo,
+            band_height=self.band_height,
+            band_reduce=self.band_reduce,
+            contacts=self.contacts,
         )
 
     def slam_values(self) -> dict:

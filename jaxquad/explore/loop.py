@@ -39,6 +39,7 @@ from jaxquad.estimate.laser import planar_twist
 from jaxquad.kernels import critics
 from jaxquad.kernels.costmap import CostGrid
 from jaxquad.kernels.occupancy import occupancy_values
+from jaxquad.kernels.scan import BAND_REDUCTIONS
 from jaxquad.nav import explore
 from jaxquad.nav import navigate as nav
 from jaxquad.nav.body import Body, BodyParams, make_body, pose_error
@@ -57,11 +58,14 @@ class ExploreLoopConfig:
     lo_constraints: str = "preintegrated"  # the SLAM's leg-odometry edges (jaxquad.slam.LO_CONSTRAINTS)
     frames_per_tick: int = 3
     band_height: int = 1  # scan band rows
+    band_reduce: str = "median"  # each ray's range from its band: "median" or the paper's "min" (kernels.scan)
     contacts: str = "truth"  # the estimator's contact source
 
     def __post_init__(self):
         if self.lo_constraints not in slam.LO_CONSTRAINTS:
             raise ValueError(f"lo_constraints must be one of {slam.LO_CONSTRAINTS}, got {self.lo_constraints!r}")
+        if self.band_reduce not in BAND_REDUCTIONS:
+            raise ValueError(f"band_reduce must be one of {BAND_REDUCTIONS}, got {self.band_reduce!r}")
         for name in ("frames_per_tick", "band_height"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
@@ -131,7 +135,7 @@ def coverage(values: Int[Array, "H W"], reachable: Bool[Array, "H W"]) -> Float[
 
 def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
     """The loop's pure functions for `fleet` (a `jaxquad.sim.Fleet` with depth; static parts closed over)."""
-    body = make_body(fleet, config.odometry, config.scans, config.band_height, config.contacts)
+    body = make_body(fleet, config.odometry, config.scans, config.band_height, config.contacts, config.band_reduce)
     tick_dt = config.frames_per_tick * float(fleet.frame_dt)
 
     def slam_step(params: ExploreLoopParams, s: slam.SlamState, b: Body, depth, odom, active=True):

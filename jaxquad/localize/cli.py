@@ -57,6 +57,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="contact-observer parameters of the odometry (as `jaxquad estimate --params`; default: the paper's)",
     )
     parser.add_argument("--band-height", type=int, default=5, help="scan band height in px (default 5; 30 real robot)")
+    parser.add_argument(
+        "--band-reduce",
+        choices=("median", "min"),
+        default="median",
+        help="each scan ray's range from its band of pixels: the median, or the paper's minimum (biased short "
+        "by depth noise; see jaxquad.kernels.scan) (default median)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -82,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
             args.band_height,
             progress,
             args.observer_params,
+            args.band_reduce,
         )
     print(to_json({"params_file": summary["params_file"], "params": summary["params"]}))
     brief = {"robots": len(summary["robots"]), "out": str(args.out)}

@@ -115,7 +115,13 @@ def _scores(t: np.ndarray, pose: np.ndarray, gt: np.ndarray, valid: np.ndarray, 
 
 
 def log_inputs(
-    log: dict, lp: LocalizeParams, contacts: str = "mixed", band_height: int = 5, observer_params=None, progress=None
+    log: dict,
+    lp: LocalizeParams,
+    contacts: str = "mixed",
+    band_height: int = 5,
+    observer_params=None,
+    progress=None,
+    band_reduce: str = "median",
 ) -> dict:
     """What the filter reads from a loaded log (`jaxquad.estimate.laser.laser_inputs` with the
     stabilized scans cut to the filter's laser range limits); `progress(0, F)` once the log is checked."""
@@ -128,6 +134,7 @@ def log_inputs(
         lp.laser_max_range,
         observer_params,
         progress=progress,
+        band_reduce=band_reduce,
     )
 
 
@@ -140,13 +147,14 @@ def localize_log(
     band_height: int = 5,
     progress=None,
     observer_params=None,
+    band_reduce: str = "median",
 ) -> list[dict]:
     """Localize every robot of a loaded log on `occ` (an OccupancyMap). `initial`: "global", "gt"
     (the log's ground truth at the first frame) or an (x, y, theta) pose. One dict per robot."""
     if initial == "gt" and "gt_pose" not in log:
         raise ValueError("--initial-pose-gt needs a log with gt_pose")
     field = field_of_map(occ, lp.laser_likelihood_max_dist)
-    x = log_inputs(log, lp, contacts, band_height, observer_params, progress)
+    x = log_inputs(log, lp, contacts, band_height, observer_params, progress, band_reduce)
     n = x["odom"].shape[0]
     gt = x.get("gt")
     if initial == "global":
@@ -195,6 +203,7 @@ def run_localize(
     band_height: int = 5,
     progress=None,
     observer_params=None,
+    band_reduce: str = "median",
 ) -> dict:
     """Localize the robots of the log at `log_path` on the map at `map_path`; write `out_dir`."""
     from jaxquad.io import TumTrajectory, load_log, load_map, write_json, write_tum
@@ -204,7 +213,7 @@ def run_localize(
     lp = load_params(params_path, max_particles=particles)
     occ = load_map(map_path)
     log = load_log(log_path)
-    robots = localize_log(log, occ, lp, initial, contacts, band_height, progress, observer_params)
+    robots = localize_log(log, occ, lp, initial, contacts, band_height, progress, observer_params, band_reduce)
     summary = {
         "kind": SUMMARY_KIND,
         "log": str(log_path),
@@ -215,6 +224,7 @@ def run_localize(
         "contacts": contacts,
         "observer_params": None if observer_params is None else str(observer_params),
         "band_height_px": band_height,
+        "band_reduce": band_reduce,
         "robots": [],
     }
     with atomic_dir(out_dir) as tmp:

@@ -12,6 +12,11 @@ within the 3 x 3 neighbourhood (Chebyshev distance <= 1).
   free_coverage: true free cells the estimate calls free / true free cells
   phantom_fraction: estimated occupied cells lying in true free space farther than one cell from
           any true occupied cell / estimated occupied cells ("phantom walls")
+  recall_in_view, iou_in_view: recall and iou with the true visible occupied cells restricted to those
+          `in_view` (`cells_in_view`: the cells the sensor's beams first hit on the true map from the
+          true path), so walls the robot never faced do not count as missed; NaN without `in_view`.
+          Precision and its cells are the same as above: a map that draws walls it never saw is still
+          charged for them, and one that draws nothing scores 0.
 
 The estimate is compared on the truth's cells: when the two grids differ (origin, resolution or
 shape), each true cell centre takes the value of the estimate's cell containing it (nearest-cell
@@ -39,6 +44,9 @@ class MapScores:
     phantom_fraction: float
     n_estimated_occupied: int
     n_true_visible_occupied: int
+    recall_in_view: float = float("nan")
+    iou_in_view: float = float("nan")
+    n_true_in_view: int = 0
 
 
 def resample_map(occ: OccupancyMap, like: OccupancyMap) -> OccupancyMap:
@@ -60,8 +68,36 @@ def _ratio(num: int, den: int) -> float:
     return float(num) / den if den else float("nan")
 
 
-def map_scores(estimate: OccupancyMap, truth: OccupancyMap) -> MapScores:
-    """Scores of `estimate` against `truth` (see the module docstring); NaN where a ratio has no cells."""
+def cells_in_view(
+    truth: OccupancyMap, poses: np.ndarray, bearings: np.ndarray, range_max: float, step_cells: float = 0.1
+) -> np.ndarray:
+    """Boolean grid of `truth`'s occupied cells that some beam of an ideal laser first hits: beams at
+    `bearings` (B,) rad from each of the sensor poses (S, 3) x y yaw (world), out to `range_max` m,
+    marched in steps of `step_cells` cells (rays that only clip a cell's corner may miss it)."""
+    occ = truth.grid.astype(np.int16) > 100 * OCCUPIED_THRESH
+    rows, cols = occ.shape
+    poses = np.asarray(poses, np.float64)
+    poses = poses[np.all(np.isfinite(poses), axis=1)]
+    s = np.arange(0.0, range_max, step_cells * truth.resolution)
+    seen = np.zeros(rows * cols, bool)
+    for chunk in np.array_split(poses, max(1, len(poses) // 64)):
+        a = chunk[:, 2:3] + np.asarray(bearings, np.float64)[None]  # (P, B)
+        x = chunk[:, 0, None, None] + np.cos(a)[..., None] * s  # (P, B, steps)
+        y = chunk[:, 1, None, None] + np.sin(a)[..., None] * s
+        c = np.floor((x - truth.origin[0]) / truth.resolution).astype(np.int64)
+        r = np.floor((y - truth.origin[1]) / truth.resolution).astype(np.int64)
+        inside = (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
+        flat = np.where(inside, r * cols + c, 0)
+        hit = inside & occ.ravel()[flat]
+        first = hit.argmax(-1)
+        any_hit = hit.any(-1)
+        seen[np.take_along_axis(flat, first[..., None], -1)[..., 0][any_hit]] = True
+    return seen.reshape(rows, cols)
+
+
+def map_scores(estimate: OccupancyMap, truth: OccupancyMap, in_view: np.ndarray | None = None) -> MapScores:
+    """Scores of `estimate` against `truth` (see the module docstring); NaN where a ratio has no cells.
+    `in_view`: a boolean grid on `truth`'s cells (`cells_in_view`) for the in-view recall and IoU."""
     est = resample_map(estimate, truth).grid.astype(np.int16)
     true = truth.grid.astype(np.int16)
     est_occ, est_free = est > 100 * OCCUPIED_THRESH, (est >= 0) & (est < 100 * FREE_THRESH)
@@ -73,6 +109,17 @@ def map_scores(estimate: OccupancyMap, truth: OccupancyMap) -> MapScores:
     tp = int((est_occ & near_true).sum())
     fp = int((est_occ & ~near_true).sum())
     fn = int((visible & ~near_est).sum())
+    extra = {}
+    if in_view is not None:
+        if np.shape(in_view) != true.shape:
+            raise ValueError(f"in_view has shape {np.shape(in_view)}, the true map {true.shape}")
+        seen = visible & np.asarray(in_view, bool)
+        fn_seen = int((seen & ~near_est).sum())
+        extra = {
+            "recall_in_view": _ratio(int((seen & near_est).sum()), int(seen.sum())),
+            "iou_in_view": _ratio(tp, tp + fp + fn_seen),
+            "n_true_in_view": int(seen.sum()),
+        }
     return MapScores(
         precision=_ratio(tp, tp + fp),
         recall=_ratio(int((visible & near_est).sum()), int(visible.sum())),
@@ -81,4 +128,5 @@ def map_scores(estimate: OccupancyMap, truth: OccupancyMap) -> MapScores:
         phantom_fraction=_ratio(int((est_occ & true_free & ~near_true).sum()), int(est_occ.sum())),
         n_estimated_occupied=int(est_occ.sum()),
         n_true_visible_occupied=int(visible.sum()),
+        **extra,
     )

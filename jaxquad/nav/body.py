@@ -76,7 +76,9 @@ def pose_error(a, b) -> tuple[Float[Array, ""], Float[Array, ""]]:
     return jnp.hypot(a[0] - b[0], a[1] - b[1]), jnp.abs(wrap_angle(a[2] - b[2]))
 
 
-def make_body(fleet, odometry: str, scans: str, band_height: int, contacts: str) -> BodyFunctions:
+def make_body(
+    fleet, odometry: str, scans: str, band_height: int, contacts: str, band_reduce: str = "median"
+) -> BodyFunctions:
     """The body functions for `fleet` (a `jaxquad.sim.Fleet` with depth; static parts closed over)."""
     if odometry not in ODOMETRY:
         raise ValueError(f"odometry must be one of {ODOMETRY}, got {odometry!r}")
@@ -118,9 +120,9 @@ def make_body(fleet, odometry: str, scans: str, band_height: int, contacts: str)
         if scans == "stabilized":
             roll, pitch = roll_pitch(est.pose.q_world_base)
             return stabilized_scan(
-                depth, params.intrinsics, roll, pitch, band_height, params.range_min, params.range_max
+                depth, params.intrinsics, roll, pitch, band_height, params.range_min, params.range_max, band_reduce
             )
-        return baseline_scan(depth, params.intrinsics, band_height, params.range_min, params.range_max)
+        return baseline_scan(depth, params.intrinsics, band_height, params.range_min, params.range_max, band_reduce)
 
     def leg_T(est) -> Float[Array, "4 4"]:
         return SE3.from_rotation_and_translation(SO3(est.pose.q_world_base), est.pose.p_world_base).as_matrix()

@@ -37,6 +37,7 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 from jaxquad.kernels.costmap import CostGrid
 from jaxquad.kernels.likelihood_field import LikelihoodField
 from jaxquad.kernels.particle_filter import AmclInputs, AmclParams, AmclState, amcl_init, amcl_step
+from jaxquad.kernels.scan import BAND_REDUCTIONS
 from jaxquad.nav import navigate as nav
 from jaxquad.nav.body import ODOMETRY, SCANS, Body, BodyParams, make_body, pose_error
 
@@ -53,6 +54,7 @@ class LoopConfig:
     n_goals: int = 5
     frames_per_tick: int = 3
     band_height: int = 1  # scan band rows (the authors' simulation used 5: the minimum over noisy rows reads short)
+    band_reduce: str = "median"  # each ray's range from its band: "median" or the paper's "min" (kernels.scan)
     contacts: str = "truth"  # the estimator's contact source (the paper's simulations: ground truth)
     n_particles: int = 2000  # AMCL particles per robot
 
@@ -63,6 +65,8 @@ class LoopConfig:
             raise ValueError(f"scans must be one of {SCANS}, got {self.scans!r}")
         if self.contacts not in ("truth", "mixed"):
             raise ValueError(f"contacts must be 'truth' or 'mixed', got {self.contacts!r}")
+        if self.band_reduce not in BAND_REDUCTIONS:
+            raise ValueError(f"band_reduce must be one of {BAND_REDUCTIONS}, got {self.band_reduce!r}")
         for name in ("n_goals", "frames_per_tick", "band_height", "n_particles"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
@@ -136,7 +140,7 @@ class LoopFunctions(NamedTuple):
 
 def make_loop(fleet, config: LoopConfig) -> LoopFunctions:
     """The loop's pure functions for `fleet` (a `jaxquad.sim.Fleet` with depth; static parts closed over)."""
-    body = make_body(fleet, config.odometry, config.scans, config.band_height, config.contacts)
+    body = make_body(fleet, config.odometry, config.scans, config.band_height, config.contacts, config.band_reduce)
     frame_dt = float(fleet.frame_dt)
 
     def time_limit(params: LoopParams, m: NavMap, gid, pose):

@@ -77,6 +77,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--band-height", type=int, default=5, help="robot logs: scan band height in px (default 5)")
     parser.add_argument(
+        "--band-reduce",
+        choices=("median", "min"),
+        default=None,
+        help="robot logs: each scan ray's range from its band of pixels, the median or the paper's minimum "
+        "(biased short by depth noise; see jaxquad.kernels.scan) (default median; min with --variant)",
+    )
+    parser.add_argument(
         "--true-map",
         nargs="+",
         default=None,
@@ -114,7 +121,8 @@ def detect_format(path: Path) -> str:
 
 def resolve_variant(args) -> None:
     """Fill --scans, --odometry, --vo-leg-odometry and --lo-constraints from --variant (which may not be
-    combined with them) or from their defaults."""
+    combined with them) or from their defaults; --band-reduce, when not given, is the paper's min with a
+    variant and median without."""
     from jaxquad.slam.variants import VARIANTS
 
     keys = ("scans", "odometry", "vo_leg_odometry", "lo_constraints")
@@ -129,7 +137,11 @@ def resolve_variant(args) -> None:
             v.vo_coupling,
             v.lo_constraints,
         )
+        if args.band_reduce is None:
+            args.band_reduce = "min"  # the paper's scans
         return
+    if args.band_reduce is None:
+        args.band_reduce = "median"
     for key, default in zip(keys, ("stabilized", "lo", "guess+restart", "preintegrated"), strict=True):
         if getattr(args, key) is None:
             setattr(args, key, default)
@@ -177,6 +189,7 @@ def _load(args, path: Path, fmt: str, values: dict, progress=None):
         args.odometry,
         args.vo_leg_odometry,
         args.devices,
+        args.band_reduce,
     )
     n = x["odom"].shape[0]
     fleet = "fallen" in log
@@ -220,6 +233,7 @@ def run(args: argparse.Namespace) -> int:
         "input": str(path),
         "format": fmt,
         "scans": args.scans if fmt == "robot" else "laser",
+        "band_reduce": args.band_reduce if fmt == "robot" else None,
         "variant": args.variant,
         "odometry": args.odometry if fmt == "robot" else "log",
         "vo_leg_odometry": args.vo_leg_odometry if fmt == "robot" and args.odometry == "vo" else None,

@@ -8,16 +8,19 @@
 
 Scores (with ground truth): ATE/ARE/APE/RPE and segment drift of the online, final and odometry-only
 trajectories against the truth (evo's definitions, SE(3) Umeyama alignment, 2D poses at z = 0), and
-the final map's scores against the true map (`jaxquad.metrics.map_scores`).
+the final map's scores against the true map (`jaxquad.metrics.map_scores`; with the truth path, also
+in view: the walls an ideal laser at the true laser poses first hits, out to the map's range).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 
 from jaxquad.io import G2oGraph, TumTrajectory, save_map, write_g2o, write_tum
+from jaxquad.kernels.lie import se2, xy_theta
 from jaxquad.kernels.occupancy import GridSpec
 from jaxquad.slam import online
 from jaxquad.slam.mapping import to_occupancy_map
@@ -104,9 +107,14 @@ def robot_report(
     if true_map is not None:
         from dataclasses import asdict
 
-        from jaxquad.metrics import map_scores
+        from jaxquad.metrics import cells_in_view, map_scores
 
-        rep["map_scores"] = asdict(map_scores(to_occupancy_map(spec.grid, state.grid), true_map))
+        in_view = None
+        if "gt" in x:
+            gt = x["gt"][i][np.asarray(x["valid"][i], bool)]
+            T_world_laser = se2(jnp.asarray(gt, jnp.float32)) @ se2(jnp.asarray(x["T_base_laser"], jnp.float32))
+            in_view = cells_in_view(true_map, np.asarray(xy_theta(T_world_laser)), x["bearings"], spec.grid.max_range)
+        rep["map_scores"] = asdict(map_scores(to_occupancy_map(spec.grid, state.grid), true_map, in_view))
     return rep
 
 

@@ -15,7 +15,9 @@ every pixel's 3D point by roll and pitch and bins it by bearing. Depth odometry 
 the leg odometry off takes only its first pose from it; `guess+restart` starts each alignment from
 the leg odometry's motion and restarts a lost frame from its pose.
 
-Everything else (contact source, SLAM parameters, scan band, range limits) is the same for all.
+Everything else (contact source, SLAM parameters, scan band, range limits) is the same for all; the
+band's rows are reduced to one range by their minimum, the paper's rule (`jaxquad slam --variant`
+and `experiments/ablation.py`; `--band-reduce median` overrides it on the command line).
 """
 
 from __future__ import annotations
