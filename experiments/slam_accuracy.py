@@ -41,7 +41,7 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list) -> dict:
     from jaxquad.sim.fleet import FleetConfig
     from jaxquad.sim.rollout import rollout
     from jaxquad.slam import final_poses, load_params, map_grid, run_fleet, slam_config
-    from jaxquad.slam.report import robot_report, robot_slice
+    from jaxquad.slam.report import robot_report, robot_slice, truth_in_view
 
     config = FleetConfig(
         robot=robot,
@@ -71,6 +71,8 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list) -> dict:
     t = np.asarray(x["t"], np.float64)
     grid = map_grid(x, values["resolution"], values["max_laser_range"])
     world_index = np.asarray(log["world_index"])
+    robot_maps = [maps[world_index[i] % len(maps)] for i in range(args.robots)]
+    in_view = [truth_in_view(x, i, robot_maps[i], grid.max_range) for i in range(args.robots)]
     for lo in args.lo_constraints:
         spec, params = slam_config(values, grid, lo, x["T_base_laser"])
         t0 = time.perf_counter()
@@ -78,9 +80,7 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list) -> dict:
         wall = time.perf_counter() - t0
         final = final_poses(state, out)
         reps = [
-            robot_report(
-                spec, t, robot_slice(state, i), robot_slice(out, i), final[i], x, i, maps[world_index[i] % len(maps)]
-            )
+            robot_report(spec, t, robot_slice(state, i), robot_slice(out, i), final[i], x, i, robot_maps[i], in_view[i])
             for i in range(args.robots)
         ]
         ate = lambda which, reps=reps: [r["scores"][which].get("ate", {}).get("rmse") for r in reps]  # noqa: E731

@@ -84,8 +84,10 @@ def robot_report(
     x: dict,
     i: int,
     true_map=None,
+    in_view=None,
 ) -> dict:
-    """Counts and (with ground truth) scores of robot i; `state`/`out` hold that robot's arrays."""
+    """Counts and (with ground truth) scores of robot i; `state`/`out` hold that robot's arrays.
+    `in_view`: robot i's `truth_in_view` when already computed (it depends on the truth alone)."""
     kinds = np.asarray(state.edge_kind[: int(state.n_edges)])
     mask = np.asarray(state.graph.edge_mask[: int(state.n_edges)], bool)
     rep = {
@@ -107,15 +109,24 @@ def robot_report(
     if true_map is not None:
         from dataclasses import asdict
 
-        from jaxquad.metrics import cells_in_view, map_scores
+        from jaxquad.metrics import map_scores
 
-        in_view = None
-        if "gt" in x:
-            gt = x["gt"][i][np.asarray(x["valid"][i], bool)]
-            T_world_laser = se2(jnp.asarray(gt, jnp.float32)) @ se2(jnp.asarray(x["T_base_laser"], jnp.float32))
-            in_view = cells_in_view(true_map, np.asarray(xy_theta(T_world_laser)), x["bearings"], spec.grid.max_range)
+        if in_view is None:
+            in_view = truth_in_view(x, i, true_map, spec.grid.max_range)
         rep["map_scores"] = asdict(map_scores(to_occupancy_map(spec.grid, state.grid), true_map, in_view))
     return rep
+
+
+def truth_in_view(x: dict, i: int, true_map, range_max: float):
+    """The true map's walls in view of robot i's true laser poses (`jaxquad.metrics.cells_in_view`), or
+    None without ground truth."""
+    from jaxquad.metrics import cells_in_view
+
+    if "gt" not in x:
+        return None
+    gt = x["gt"][i][np.asarray(x["valid"][i], bool)]
+    T_world_laser = se2(jnp.asarray(gt, jnp.float32)) @ se2(jnp.asarray(x["T_base_laser"], jnp.float32))
+    return cells_in_view(true_map, np.asarray(xy_theta(T_world_laser)), x["bearings"], range_max)
 
 
 def robot_slice(tree, i: int):
