@@ -106,3 +106,7 @@ def test_footprint_of_a_robot_sets_disks_and_inscribed_radius():
     np.testing.assert_allclose(disks[:, 0], center[0] + np.array([-2, 0, 2]) * half[0] / 3, atol=1e-6)
     np.testing.assert_allclose(disks[:, 1], center[1], atol=1e-7)
     np.testing.assert_allclose(float(p.costmap.inscribed_radius), math.hypot(half[1], half[0] / 3), rtol=1e-6)
+    padded = nav.NavParams.default(n_samples=8, horizon=4, footprint=(center, half), footprint_padding=0.1)
+    padded_radius = float(padded.costmap.inscribed_radius)
+    np.testing.assert_allclose(padded_radius, math.hypot(half[1], half[0] / 3) + 0.1, rtol=1e-6)
+    np.testing.assert_array_equal(padded.controller.footprint_disks, disks)  # the disks' centres do not move

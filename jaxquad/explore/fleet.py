@@ -143,9 +143,8 @@ def clear_cells(world, truth, reachable: np.ndarray) -> np.ndarray:
 
 def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_dt: float) -> xl.ExploreLoopParams:
     body = body_params(fleet, loop.odometry, 0.2, SCAN_RANGE)
-    nav_params = loop_nav_params(truth.grid.shape, cfg.samples, cfg.horizon, REPLAN_TICKS, tick_dt, body)
-    nav_params = eqx.tree_at(
-        lambda p: p.costmap.inscribed_radius, nav_params, nav_params.costmap.inscribed_radius + cfg.footprint_padding
+    nav_params = loop_nav_params(
+        truth.grid.shape, cfg.samples, cfg.horizon, REPLAN_TICKS, tick_dt, body, cfg.footprint_padding
     )
     values = cfg.slam_values()
     T_bc = np.asarray(fleet.T_base_camera)

@@ -137,11 +137,18 @@ class NavResult:
 
 
 def loop_nav_params(
-    grid_shape: tuple[int, int], samples: int, horizon: int, replan_ticks: int, tick_dt: float, body: BodyParams
+    grid_shape: tuple[int, int],
+    samples: int,
+    horizon: int,
+    replan_ticks: int,
+    tick_dt: float,
+    body: BodyParams,
+    footprint_padding: float = 0.0,
 ) -> nav.NavParams:
     """The navigation numbers of a closed loop on a map of `grid_shape` cells: path capacity for a winding route
-    across it (1.5 x its sides, one point every 4 cells), the robot's footprint from its body parameters, and
-    the control tick (s) as MPPI's model step."""
+    across it (1.5 x its sides, one point every 4 cells), the robot's footprint from its body parameters (its
+    covering disks padded by `footprint_padding` m in the costmap), and the control tick (s) as MPPI's model
+    step."""
     rows, cols = grid_shape
     params = nav.NavParams.default(
         n_samples=samples,
@@ -149,6 +156,7 @@ def loop_nav_params(
         n_path_points=max(32, math.ceil(1.5 * (rows + cols) / 4)),
         replan_ticks=replan_ticks,
         footprint=(body.footprint_center, body.footprint_half),
+        footprint_padding=footprint_padding,
     )
     return eqx.tree_at(lambda p: p.controller.dt, params, jnp.asarray(tick_dt, jnp.float32))
 

@@ -40,15 +40,18 @@ class NavParams(eqx.Module):
         path_stride: int = 4,
         replan_ticks: int = 10,
         footprint: tuple | None = None,
+        footprint_padding: float = 0.0,
     ) -> NavParams:
         """`footprint`: (centre, half extents) of the robot's planform rectangle in the base frame (m,
         `nav.missions.footprint`); the controller then checks the 3 disks covering it and the costmap's
-        inscribed radius becomes their radius. Without it the robot is a disk of 0.2 m."""
+        inscribed radius becomes their radius. Without it the robot is a disk of 0.2 m. `footprint_padding`
+        (m) is added to that radius: room for the error of the pose the robot navigates by."""
         costmap, controller = CostmapParams.default(), mppi.MppiParams.default(n_samples=n_samples, horizon=horizon)
         if footprint is not None:
             disks, radius = footprint_disks(*(jnp.asarray(a, jnp.float32) for a in footprint))
             costmap = eqx.tree_at(lambda c: c.inscribed_radius, costmap, radius)
             controller = eqx.tree_at(lambda c: c.footprint_disks, controller, disks)
+        costmap = eqx.tree_at(lambda c: c.inscribed_radius, costmap, costmap.inscribed_radius + footprint_padding)
         # 0.5 m goal tolerance of the planner: NavFn's in the authors' configuration.
         return cls(
             costmap=costmap,
