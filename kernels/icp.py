@@ -44,6 +44,8 @@ class IcpParams(eqx.Module):
     # depth jump to a neighbour that invalidates a normal, relative to z per radian of pixel angle
     # (so the same number fits every pyramid level; grazing floors legitimately jump by ~ d / height)
     max_normal_jump: Float[Array, ""]
+    # radius (px) of the edge-aware inverse-depth mean applied before the pyramid; 0: raw depth
+    smooth_radius: int = eqx.field(static=True, default=2)
 
     @classmethod
     def default(cls) -> IcpParams:
@@ -128,13 +130,39 @@ def image_normals(
     return jnp.where(ok[..., None], n, 0.0), ok
 
 
+def smooth_depth(depth: Float[Array, "h w"], radius: int, max_jump: Float[Array, ""]) -> Float[Array, "h w"]:
+    """Edge-aware mean of the inverse depth over a (2 radius + 1)^2 window (invalid pixels stay 0).
+
+    A neighbour d pixels away (Chebyshev) joins the mean if valid and within `max_jump` * z * d of
+    the centre's depth (same surface). Inverse depth is affine in the pixel coordinates on a plane, so a
+    symmetric window leaves planes where they are, and a stereo camera's inverse-depth noise (std k,
+    for a depth std k z^2) is the same at every range: the plain mean is the best linear estimate."""
+    h, w = depth.shape
+    valid = jnp.isfinite(depth) & (depth > 0.0)
+    z = jnp.where(valid, depth, 0.0)
+    zp = jnp.pad(z, radius)
+    total, count = jnp.zeros_like(z), jnp.zeros_like(z)
+    for dv in range(-radius, radius + 1):
+        for du in range(-radius, radius + 1):
+            zn = zp[radius + dv : radius + dv + h, radius + du : radius + du + w]
+            take = (zn > 0.0) & (jnp.abs(zn - z) < max_jump * z * max(abs(du), abs(dv)))
+            total += jnp.where(take, 1.0 / jnp.where(take, zn, 1.0), 0.0)
+            count += take.astype(z.dtype)
+    return jnp.where(valid, (count + 1.0) / (total + 1.0 / jnp.where(valid, z, 1.0)), 0.0)
+
+
 def depth_frame(
     depth: Float[Array, "H W"],
     K: Float[Array, "3 3"],
     levels: int,
-    max_jump: Float[Array, ""],
+    params: IcpParams,
 ) -> tuple[DepthLevel, ...]:
-    """The pyramid of a depth image, finest level first."""
+    """The pyramid of a depth image, finest level first. The image is first smoothed by `smooth_depth`
+    (radius `params.smooth_radius`, 0: not), so the points and normals of every level see the mean
+    depth; normals use `params.max_normal_jump`."""
+    max_jump = params.max_normal_jump
+    if params.smooth_radius > 0:
+        depth = smooth_depth(depth, params.smooth_radius, max_jump / K[0, 0])
     out = []
     for level in range(levels):
         s = 2**level

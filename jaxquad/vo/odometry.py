@@ -104,7 +104,7 @@ def init(params: VoParams, depth: Float[Array, "H W"], T_world_base: Float[Array
     """Start at the first frame, at `T_world_base` (the leg odometry's pose there)."""
     T_world_cam = T_world_base @ params.T_base_camera
     eye = jnp.eye(4, dtype=T_world_cam.dtype)
-    kf = depth_frame(depth, params.K, len(params.iterations), params.icp.max_normal_jump)
+    kf = depth_frame(depth, params.K, len(params.iterations), params.icp)
     return VoState(
         keyframe=kf,
         T_world_kf=T_world_cam,
@@ -122,7 +122,7 @@ def _select(c, a, b):
 
 def step(params: VoParams, state: VoState, inputs: VoInputs) -> tuple[VoState, VoOutput]:
     T_bc = params.T_base_camera
-    cur = depth_frame(inputs.depth, params.K, len(params.iterations), params.icp.max_normal_jump)
+    cur = depth_frame(inputs.depth, params.K, len(params.iterations), params.icp)
     leg_prev_cur = _inv(T_bc) @ _inv(state.T_world_base_leg) @ inputs.T_world_base_leg @ T_bc
     if params.coupling == "off":
         motion = state.T_prev_cur.at[:3, :3].set(inputs.R_prev_cur_gyro)
