@@ -1,7 +1,9 @@
 """Depth-inertial visual odometry for one robot, guided and restarted by leg odometry.
 
 Each depth frame is aligned to a keyframe by `kernels.icp.align` (projective point-to-plane ICP,
-coarse to fine) with the gyro's integrated rotation since the previous frame as a rotation prior.
+coarse to fine, on edge-aware smoothed depth) with the gyro's integrated rotation since the previous
+frame as a rotation prior and world up from the leg odometry's attitude (roll and pitch from gravity)
+as a tilt prior.
 The initial guess of the frame's motion depends on the coupling (static, `VoParams.coupling`):
 
   off            the previous frame's motion repeated, its rotation replaced by the gyro's (a
@@ -135,7 +137,10 @@ def step(params: VoParams, state: VoState, inputs: VoInputs) -> tuple[VoState, V
         motion, icp_params = leg_prev_cur, params.icp
     T_init = state.T_kf_cur @ motion
     T_guess = T_init.at[:3, :3].set(state.T_kf_cur[:3, :3] @ inputs.R_prev_cur_gyro)
-    aln = align(state.keyframe, cur, params.K, T_init, T_guess, icp_params, params.iterations)
+    # World up in the keyframe (its tracked pose) and in this frame (the leg odometry's attitude, whose
+    # roll and pitch come from gravity): the tilt prior keeps the frame-to-frame rotations from drifting.
+    up = jnp.stack([state.T_world_kf[2, :3], (inputs.T_world_base_leg[:3, :3] @ T_bc[:3, :3])[2]])
+    aln = align(state.keyframe, cur, params.K, T_init, T_guess, icp_params, params.iterations, up)
 
     ok = jnp.all(jnp.isfinite(aln.T_ref_cur)) & jnp.isfinite(aln.min_eig)
     lost = ~ok | (aln.n_inliers < params.min_inliers) | (aln.min_eig < params.min_eig) | (aln.rmse > params.max_rmse)
