@@ -24,7 +24,10 @@ T_BASE_CAM[:3, :3], T_BASE_CAM[:3, 3] = (
 
 def _params(coupling: str) -> VoParams:
     p = VoParams.default(K, T_BASE_CAM, coupling)
-    return dataclasses.replace(p, min_inliers=jnp.asarray(50.0), iterations=(4, 6))
+    # 40 x 30 noise-free images have 1/16 of the camera's pixels: no smoothing (see test_icp.RAW) and the
+    # translation prior's weight scaled by 1/16, so that it weighs against the points as on the camera.
+    icp = dataclasses.replace(p.icp, smooth_radius=0, trans_prior_weight=p.icp.trans_prior_weight / 16)
+    return dataclasses.replace(p, icp=icp, min_inliers=jnp.asarray(50.0), iterations=(4, 6))
 
 
 @functools.cache
@@ -113,3 +116,30 @@ def test_corridor_is_flagged_as_degenerate():
     assert np.all(np.asarray(out.min_eig[0, 1:]) < float(_params("guess+restart").min_eig))
     # Lost on every frame, the pose follows the leg odometry (here exact).
     np.testing.assert_allclose(np.asarray(out.T_world_base[0, -1]), truth[-1], atol=1e-4)
+
+
+def test_tilt_prior_holds_roll_and_pitch_against_a_biased_gyro():
+    # The gyro reads 0.5 deg per frame too much pitch; the leg odometry's attitude (gravity) is exact. With
+    # a stiff gyro prior the chained rotations follow the gyro, unless the tilt prior holds world up.
+    truth = _walk(8, np.random.default_rng(2))
+    seq = _sequence(truth, ROOM)
+    bias = Rotation.from_rotvec([np.deg2rad(0.5), 0.0, 0.0]).as_matrix()  # about camera x: pitch
+    R = np.asarray(seq.R_prev_cur_gyro, np.float64) @ bias
+    R[0] = np.eye(3)
+    seq = eqx.tree_at(lambda x: x.R_prev_cur_gyro, seq, jnp.asarray(R, jnp.float32))
+    fn = jax.jit(jax.vmap(run, in_axes=(None, 0)))
+
+    def tilt_error_deg(tilt_weight):
+        p = _params("guess+restart")
+        p = eqx.tree_at(
+            lambda q: (q.icp.rot_prior_weight, q.icp.tilt_prior_weight),
+            p,
+            (jnp.asarray(1e7, jnp.float32), jnp.asarray(tilt_weight, jnp.float32)),
+        )
+        T = np.asarray(fn(p, _stack(seq)).T_world_base[0, -1], np.float64)
+        up_est, up_true = T[2, :3], truth[-1][2, :3]  # world z in the base frame
+        return np.degrees(np.arccos(np.clip(up_est @ up_true, -1.0, 1.0)))
+
+    free, held = tilt_error_deg(0.0), tilt_error_deg(1e7)
+    assert free > 2.0, free  # ~0.5 deg per frame accumulated
+    assert held < 0.25 * free, (held, free)

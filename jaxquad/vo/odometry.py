@@ -15,6 +15,10 @@ The initial guess of the frame's motion depends on the coupling (static, `VoPara
   guess+restart  as `guess`, and on loss restart from the last good pose moved by the leg
                  odometry's motion since that frame (as the paper does).
 
+The tilt prior (`IcpParams.tilt_prior_weight`) reads world up from the attitude of the pose given as
+`T_world_base_leg` (the estimator's IMU attitude) in every coupling, `off` included: it is the IMU's
+gravity, not the legs' motion.
+
 A frame is lost when the alignment has too few inliers, a badly conditioned normal matrix (its
 smallest eigenvalue per inlier below `min_eig`), or a large residual. A lost frame becomes the new
 keyframe at the restart pose; a tracked frame becomes the keyframe when its overlap with the
