@@ -360,7 +360,7 @@ def test_gradients_wrt_thresholds_and_weights_are_finite():
 
 def test_smoothing_recovers_motion_from_noisy_depth():
     # The simulated camera's resolution and noise (std 0.01 z^2, as a D435 at 2 m): single-pixel normals
-    # are noise, and the smoothed pyramid recovers the motion several times better.
+    # are noise, and the smoothed pyramid recovers the motion several times better (here 18 -> 5 mm of 75 mm).
     w, h = 160, 120
     K160 = np.array([[87.0, 0.0, 79.5], [0.0, 87.0, 59.5], [0.0, 0.0, 1.0]])
     rays = jnp.asarray(pinhole_rays(K160, h, w))
@@ -375,8 +375,8 @@ def test_smoothing_recovers_motion_from_noisy_depth():
 
     @jax.jit
     def run(params):
-        ref, cur = (icp.depth_frame(d, Kj, 3, params) for d in depth)
-        return icp.align(ref, cur, Kj, _f32(np.eye(4)), _f32(np.eye(4)), params, (2, 4, 6)).T_ref_cur
+        ref, cur = (icp.depth_frame(d, Kj, 2, params) for d in depth)
+        return icp.align(ref, cur, Kj, _f32(np.eye(4)), _f32(np.eye(4)), params, (2, 4)).T_ref_cur
 
     free = eqx.tree_at(lambda p: (p.rot_prior_weight, p.trans_prior_weight), icp.IcpParams.default(), (_f32(0.0),) * 2)
     err = {}
