@@ -1,15 +1,19 @@
 """Visual odometry with and without leg-odometry coupling, and its batched throughput.
 
-    python experiments/vo_couplings.py --log sim/fleet.npz [--contacts mixed] [--throughput 1 1024]
+    python experiments/vo_couplings.py --log sim/fleet.npz [--contacts mixed truth] [--throughput 1 1024]
+    python experiments/vo_couplings.py --robot go2 --robot badger --world house --world warehouse
+        [--robots 32] [--seconds 60] [--seed 1] [--contacts mixed truth]
 
-The log is a simulated fleet with depth and ground truth (`jaxquad simulate ... --out sim/`). The
-estimator runs once (leg odometry); the visual odometry then runs with each coupling (off, guess,
-guess+restart). Printed as Markdown: per coupling the mean and max ATE over robots (SE(3)-aligned,
-evo's definition), the RPE translation RMSE over 2 m / 5 m segments (in % of the segment), the segment
-drift (`drift_pct`, KITTI's t_rel over 2, 5 and 10 m segments, pooled over robots as KITTI does; and
-the worst robot's), the rotation drift (deg/m) and the tracking-loss rate; the leg odometry's row at
-the same stamps for comparison. With --throughput B...: frames/s of B robots' odometry in one jitted
-vmapped call (the first robot's first --frames frames repeated), compile time apart.
+The log is a simulated fleet with depth and ground truth (`jaxquad simulate ... --out sim/`), or, with
+--robot and --world, fleets simulated in memory (aggressive gait, depth on; no multi-GB log is written),
+one per robot and world. Per log and contact source the estimator runs once (leg odometry); the visual
+odometry then runs with each coupling (off, guess, guess+restart). Printed as Markdown: per coupling the
+mean and max ATE over robots (SE(3)-aligned, evo's definition), the RPE translation RMSE over 2 m / 5 m
+segments (in % of the segment), the segment drift (`drift_pct`, KITTI's t_rel over 2, 5 and 10 m
+segments, pooled over robots as KITTI does; and the worst robot's), the rotation drift (deg/m) and the
+tracking-loss rate; the leg odometry's row at the same stamps for comparison. With --throughput B...:
+frames/s of B robots' odometry in one jitted vmapped call (the first robot's first --frames frames
+repeated), compile time apart.
 """
 
 from __future__ import annotations
@@ -92,37 +96,78 @@ def _throughput(log, est, R_base_imu, batches, frames: int) -> list[str]:
     return rows
 
 
+def _logs(args):
+    """(title, log) pairs: the --log file, or one in-memory fleet per --robot x --world."""
+    if args.log is not None:
+        from jaxquad.io import load_log
+
+        yield args.log, load_log(args.log)
+        return
+    from jaxquad.sim.fleet import FleetConfig
+    from jaxquad.sim.rollout import rollout
+
+    for robot in args.robot:
+        for world in args.world:
+            config = FleetConfig(
+                robot=robot,
+                world=world,
+                n_robots=args.robots,
+                n_worlds=min(4, args.robots),
+                style="aggressive",
+                seed=args.seed,
+                depth=True,
+            )
+            yield (
+                f"{robot} / {world}, {args.robots} robots x {args.seconds:g} s, seed {args.seed}",
+                rollout(config, args.seconds, progress=True),
+            )
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--log", required=True, help="fleet log with depth and gt_pose (.npz)")
+    ap.add_argument("--log", default=None, help="fleet log with depth and gt_pose (.npz); or simulate with --robot")
+    ap.add_argument("--robot", action="append", choices=("go2", "badger"), help="simulate this robot (repeatable)")
+    ap.add_argument("--world", action="append", choices=("house", "warehouse"), help="in this world (repeatable)")
+    ap.add_argument("--robots", type=int, default=32, help="simulated robots per fleet (default 32)")
+    ap.add_argument("--seconds", type=float, default=60.0, help="simulated time per fleet, s (default 60)")
+    ap.add_argument("--seed", type=int, default=1, help="simulation seed (default 1)")
     ap.add_argument(
         "--contacts",
-        default="mixed",
-        help="contact source of the leg odometry (default mixed)",
+        nargs="+",
+        default=["mixed"],
+        choices=("observer", "mixed", "sensor", "truth"),
+        help="contact sources of the leg odometry, a table each (default mixed)",
     )
     ap.add_argument(
         "--throughput",
         type=int,
         nargs="*",
         default=[],
-        help="batch sizes to time (default: none)",
+        help="batch sizes to time on the first log (default: none)",
     )
     ap.add_argument("--frames", type=int, default=64, help="frames per robot in the throughput runs (default 64)")
     args = ap.parse_args()
+    if (args.log is None) == (args.robot is None):
+        ap.error("give either --log or --robot (with --world)")
+    if args.robot is not None and (args.world is None or args.robots < 1 or not args.seconds > 0):
+        ap.error("--robot needs --world, --robots >= 1 and --seconds > 0")
     from jaxquad.estimate import estimate_log
     from jaxquad.estimate.inputs import R_base_imu
-    from jaxquad.io import load_log
 
     print(
         f"`python {' '.join(sys.argv)}`  \nmachine: {platform.processor() or platform.machine()}, "
         f"jax {jax.__version__} on {jax.devices()[0].device_kind}\n"
     )
-    log = load_log(args.log)
-    robot, _, est = estimate_log(log, args.contacts)
-    print("\n".join(_table(log, est, R_base_imu(robot))))
-    if args.throughput:
-        print()
-        print("\n".join(_throughput(log, est, R_base_imu(robot), args.throughput, args.frames)))
+    first = True
+    for title, log in _logs(args):
+        for contacts in args.contacts:
+            robot, _, est = estimate_log(log, contacts)
+            print(f"\n{title}, {contacts} contacts:\n")
+            print("\n".join(_table(log, est, R_base_imu(robot))), flush=True)
+            if args.throughput and first:
+                print()
+                print("\n".join(_throughput(log, est, R_base_imu(robot), args.throughput, args.frames)), flush=True)
+            first = False
     return 0
 
 
