@@ -127,6 +127,8 @@ def plot(rows: list[dict], folder: Path) -> Path:
 
 
 def main() -> int:
+    from jaxquad.cli import add_band_reduce_argument
+
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--runs", type=int, default=4, help="robots per cell, each from its own start (default 4)")
     p.add_argument("--robots", nargs="+", default=["go2", "badger"], choices=["go2", "badger"], help="(default both)")
@@ -140,7 +142,7 @@ def main() -> int:
     p.add_argument("--horizon", type=int, default=30, help="MPPI horizon in ticks (default 30)")
     p.add_argument("--every", type=float, default=5.0, help="coverage sampling period, s (default 5)")
     p.add_argument("--band-height", type=int, default=1, help="scan band height in px (default 1)")
-    p.add_argument("--band-reduce", choices=("median", "min"), default="median", help="band reduction (default median)")
+    add_band_reduce_argument(p)
     p.add_argument(
         "--devices", type=int, default=None, help="split each cell's robots over the first N devices (default all)"
     )

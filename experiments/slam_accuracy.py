@@ -122,6 +122,8 @@ def _throughput(cell: dict, batches, devices, rows: list) -> None:
 
 
 def main() -> None:
+    from jaxquad.cli import add_band_reduce_argument
+
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--robot", action="append", choices=("go2", "badger"), help="robots (default: go2)")
     p.add_argument("--world", action="append", choices=("house", "warehouse"), help="worlds (default: house)")
@@ -145,12 +147,7 @@ def main() -> None:
         choices=("off", "velocity", "preintegrated"),
         help="constraint kinds (default: all three)",
     )
-    p.add_argument(
-        "--band-reduce",
-        choices=("median", "min"),
-        default="median",
-        help="each scan ray's range from its band: median, or the paper's min (default median)",
-    )
+    add_band_reduce_argument(p)
     p.add_argument("--throughput", type=int, nargs="*", default=[], help="robot counts for the speed table")
     p.add_argument(
         "--devices",

@@ -93,6 +93,22 @@ def add_devices_argument(parser, what: str = "robots", processes: bool = True) -
     )
 
 
+def add_band_reduce_argument(
+    parser, default: str | None = "median", default_text: str = "median", scope: str = ""
+) -> None:
+    """The shared `--band-reduce` option: how each scan ray's range comes from its band of pixel rows
+    (`jaxquad.kernels.scan`); `scope` prefixes the help (e.g. "robot logs: ")."""
+    from jaxquad.kernels.scan import BAND_REDUCTIONS
+
+    parser.add_argument(
+        "--band-reduce",
+        choices=BAND_REDUCTIONS,
+        default=default,
+        help=f"{scope}each scan ray's range from its band of pixel rows: the median, or the paper's minimum "
+        f"(biased short by depth noise; see jaxquad.kernels.scan) (default {default_text})",
+    )
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse with the project's error rule: one line on stderr, exit status 1 (argparse uses 2)."""
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-from jaxquad.cli import add_devices_argument
+from jaxquad.cli import add_band_reduce_argument, add_devices_argument
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,13 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--band-height", type=int, default=5, help="scan band height, px (default 5 = simulation; 30 on the real robot)"
     )
-    parser.add_argument(
-        "--band-reduce",
-        choices=("median", "min"),
-        default="median",
-        help="each scan ray's range from its band of pixels: the median, or the paper's minimum (biased short "
-        "by depth noise; see jaxquad.kernels.scan) (default median)",
-    )
+    add_band_reduce_argument(parser)
     parser.add_argument("--range-min", type=float, default=0.2, help="scan minimum range, m (default 0.2)")
     parser.add_argument("--range-max", type=float, default=8.0, help="scan maximum range, m (default 8.0)")
     parser.add_argument(

@@ -17,7 +17,7 @@ from jaxquad.explore.report import SUMMARY_KIND
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from jaxquad.cli import add_devices_argument
+    from jaxquad.cli import add_band_reduce_argument, add_devices_argument
     from jaxquad.explore.fleet import VARIANTS
 
     parser.add_argument("--robot", default="go2", choices=["go2", "badger"], help="robot model (default go2)")
@@ -55,13 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(default 0.1)",
     )
     parser.add_argument("--band-height", type=int, default=1, help="scan band height in px (default 1)")
-    parser.add_argument(
-        "--band-reduce",
-        choices=("median", "min"),
-        default="median",
-        help="each scan ray's range from its band: the median, or the paper's minimum (biased short by depth "
-        "noise) (default median)",
-    )
+    add_band_reduce_argument(parser)
     parser.add_argument(
         "--chunk-ticks",
         type=int,

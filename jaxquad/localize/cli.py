@@ -10,6 +10,8 @@ import argparse
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from jaxquad.cli import add_band_reduce_argument
+
     parser.add_argument("log", help="robot log (.npz, single robot or fleet) with depth images")
     parser.add_argument("--map", required=True, help="occupancy map YAML (PGM + YAML, map_server format, yaw 0)")
     parser.add_argument(
@@ -57,13 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="contact-observer parameters of the odometry (as `jaxquad estimate --params`; default: the paper's)",
     )
     parser.add_argument("--band-height", type=int, default=5, help="scan band height in px (default 5; 30 real robot)")
-    parser.add_argument(
-        "--band-reduce",
-        choices=("median", "min"),
-        default="median",
-        help="each scan ray's range from its band of pixels: the median, or the paper's minimum (biased short "
-        "by depth noise; see jaxquad.kernels.scan) (default median)",
-    )
+    add_band_reduce_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:

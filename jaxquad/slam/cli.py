@@ -20,7 +20,7 @@ FORMATS = ("auto", "robot", "carmen", "laser-npz")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from jaxquad.cli import add_devices_argument
+    from jaxquad.cli import add_band_reduce_argument, add_devices_argument
 
     parser.add_argument("input", help="robot log (.npz), CARMEN log (text, .gz too) or laser log (.npz)")
     parser.add_argument("--out", required=True, help="output folder (created; an earlier SLAM output is replaced)")
@@ -76,13 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="robot logs: contact-observer parameters (as `jaxquad estimate --params`; default: the paper's)",
     )
     parser.add_argument("--band-height", type=int, default=5, help="robot logs: scan band height in px (default 5)")
-    parser.add_argument(
-        "--band-reduce",
-        choices=("median", "min"),
-        default=None,
-        help="robot logs: each scan ray's range from its band of pixels, the median or the paper's minimum "
-        "(biased short by depth noise; see jaxquad.kernels.scan) (default median; min with --variant)",
-    )
+    add_band_reduce_argument(parser, None, "median; min with --variant", "robot logs: ")
     parser.add_argument(
         "--true-map",
         nargs="+",
