@@ -29,6 +29,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from jaxquad.kernels.control_flow import run_if
 from jaxquad.kernels.lie import SE2
 from jaxquad.kernels.scan_grid import MatchParams, MatchSpec, likelihood_grid, world_points
 from jaxquad.kernels.scan_match import match_scan
@@ -106,22 +107,30 @@ def find_loop_closure(
     in_chain = found & (raw >= 0) & (raw < n) & (label[ref] == label[nearest])
     pts, mask = world_points(params.match, poses[ref], ranges[ref], bearings, valid[ref] & in_chain[:, None])
 
-    prior = poses[j]
-    coarse_grid = likelihood_grid(spec.coarse, params.match, prior[:2], pts, mask)
-    coarse = match_scan(spec.coarse, params.match, coarse_grid, prior, ranges[j], bearings, valid[j])
-    second = match_scan(
-        spec.coarse,
-        params.match,
-        coarse_grid,
-        prior,
-        ranges[j],
-        bearings,
-        valid[j],
-        coarse.pose[:2],
-        params.ambiguity_distance,
-    )
-    fine_grid = likelihood_grid(spec.fine, params.match, coarse.pose[:2], pts, mask)
-    fine = match_scan(spec.fine, params.match, fine_grid, coarse.pose, ranges[j], bearings, valid[j])
+    def matches(operand):
+        pts, mask, _ = operand
+        prior = poses[j]
+        coarse_grid = likelihood_grid(spec.coarse, params.match, prior[:2], pts, mask)
+        coarse = match_scan(spec.coarse, params.match, coarse_grid, prior, ranges[j], bearings, valid[j])
+        second = match_scan(
+            spec.coarse,
+            params.match,
+            coarse_grid,
+            prior,
+            ranges[j],
+            bearings,
+            valid[j],
+            coarse.pose[:2],
+            params.ambiguity_distance,
+        )
+        fine_grid = likelihood_grid(spec.fine, params.match, coarse.pose[:2], pts, mask)
+        fine = match_scan(spec.fine, params.match, fine_grid, coarse.pose, ranges[j], bearings, valid[j])
+        return pts, mask, (coarse, second, fine)
+
+    # Without a chain there is nothing to match: the three matches (and their grids, the costly part)
+    # are skipped, and the candidate reports zero responses.
+    nothing = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), jax.eval_shape(matches, (pts, mask, None))[2])
+    _, _, (coarse, second, fine) = run_if(found, matches, (pts, mask, nothing))
 
     unambiguous = second.coarse_response < params.ambiguity_ratio * coarse.coarse_response
     # Largest eigenvalue of the 2x2 position covariance, in closed form.

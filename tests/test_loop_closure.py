@@ -82,6 +82,7 @@ def test_loop_found_with_true_relative_pose():
     # Halfway round the loop there is no old place within 3 m: nothing to close.
     half = _find(SPEC, LoopParams(), poses, ranges, valid, mask, 60)
     assert not bool(half.accept) and int(half.chain_length) == 0
+    assert float(half.coarse_response) == 0.0 and float(half.fine_response) == 0.0  # no match was run
     # A chain requirement longer than the run of nearby old nodes rejects the same candidate.
     strict = _find(SPEC, LoopParams(min_chain=jnp.asarray(40)), poses, ranges, valid, mask, j)
     assert not bool(strict.accept)
@@ -110,8 +111,9 @@ def test_vmapped_over_robots_equals_single():
     truth = _path([(0.0, -3.0), (4.0, -3.0), (4.0, 3.0), (-4.0, 3.0), (-4.0, -3.0), (1.5, -3.0)], 0.25)
     a = _nodes(LOOP_WORLD, truth, (0.5, -0.35, 0.06))
     b = _nodes(LOOP_WORLD, truth, (-0.3, 0.4, -0.05))
-    js = jnp.array([len(truth) - 1, len(truth) - 3])
-    stacked = [jnp.stack([x, y]) for x, y in zip(a, b)]
+    # The third robot is halfway round, with no chain to match: its matches are skipped, the others' not.
+    js = jnp.array([len(truth) - 1, len(truth) - 3, 60])
+    stacked = [jnp.stack([x, y, y]) for x, y in zip(a, b)]
     bearings = jnp.asarray(BEARINGS, jnp.float32)
 
     def one(poses, ranges, valid, mask, j):
@@ -122,6 +124,7 @@ def test_vmapped_over_robots_equals_single():
         single = _find(SPEC, LoopParams(), *args, js[k])
         assert bool(fleet.accept[k]) == bool(single.accept) and bool(single.accept)
         np.testing.assert_allclose(np.asarray(fleet.T_i_j[k]), np.asarray(single.T_i_j), atol=1e-5)
+    assert int(fleet.chain_length[2]) == 0 and not bool(fleet.accept[2]) and float(fleet.coarse_response[2]) == 0.0
 
 
 def test_degenerate_match_rejected_by_its_spread():

@@ -12,10 +12,10 @@ Per scan (`SlamInputs`): the odometry pose predicts the base pose from the last 
 added on the first scan of each `min_interval`-long slot of the clock (t // min_interval changes)
 when the robot has moved `min_travel` m or turned `min_rotation` rad since the last node (the first
 usable scan is always a node): slam_toolbox's time and travel thresholds, with the time one on a
-shared clock so that the robots of a fleet add their nodes on the same scans (see `_run_if`). A new
-node's scan is matched (`kernels.scan_match`, the exact multi-resolution correlative search) against
-the running buffer: the last `SlamSpec.buffer` nodes within `buffer_distance` m, smeared into one
-likelihood grid. The match gives an edge from the last
+shared clock so that the robots of a fleet add their nodes on the same scans (see
+`kernels.control_flow.run_if`). A new node's scan is matched (`kernels.scan_match`, the exact
+multi-resolution correlative search) against the running buffer: the last `SlamSpec.buffer` nodes
+within `buffer_distance` m, smeared into one likelihood grid. The match gives an edge from the last
 node (its covariance rotated into the node's frame); a response under `link_min_response` gives the
 odometry step instead, with `odom_fallback_std`.
 
@@ -54,8 +54,9 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Float, Int
 
+from jaxquad.kernels.control_flow import run_if
 from jaxquad.kernels.lie import se2, xy_theta
 from jaxquad.kernels.loop_closure import find_loop_closure
 from jaxquad.kernels.occupancy import OccupancyGrid, init_grid, insert_scan
@@ -284,17 +285,6 @@ def _close_loop(spec: SlamSpec, params: SlamParams, state: SlamState, j, respons
     return state, response, accept, jnp.where(accept, cand.i, -1), jnp.where(cand.accept, chi2, jnp.nan)
 
 
-def _run_if(pred: Bool[Array, ""], f, operand):
-    """f(operand) if pred else operand, as a loop of 0 or 1 trips. Under `vmap` a `lax.cond` runs both
-    branches for every robot; this loop runs f only when some robot of the batch needs it."""
-
-    def body(carry):
-        return carry[0] + 1, f(carry[1])
-
-    trips = pred.astype(jnp.int32)
-    return jax.lax.while_loop(lambda c: c[0] < trips, body, (jnp.asarray(0, jnp.int32), operand))[1]
-
-
 def refresh_map(spec: SlamSpec, params: SlamParams, state: SlamState) -> SlamState:
     """The map redrawn from every node's scan at its current pose when `map_stale` (else unchanged).
 
@@ -341,7 +331,7 @@ def step(spec: SlamSpec, params: SlamParams, state: SlamState, inp: SlamInputs) 
     nan = jnp.asarray(jnp.nan)
     none = (state, nan, jnp.asarray(False), jnp.asarray(-1, jnp.int32), nan)
     add = lambda c: _add_node(spec, params, c[0], pred, inp)  # noqa: E731
-    state, response, closed, loop_node, loop_chi2 = _run_if(due, add, none)
+    state, response, closed, loop_node, loop_chi2 = run_if(due, add, none)
     if spec.refresh_map:
         state = refresh_map(spec, params, state)
     new = state.n_nodes - 1
