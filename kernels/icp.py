@@ -112,30 +112,36 @@ def image_normals(
     `NORMAL_AGREEMENT_COS` (a pixel on a crease such as a wall-floor corner has no normal), and every
     neighbour must be valid and within `max_jump` * z in depth (not across a depth edge); the
     border has no normal. `depth_frame` passes IcpParams.max_normal_jump / f_x as `max_jump`."""
-    z = points[..., 2]
+    P = tuple(jnp.moveaxis(points, -1, 0))  # component planes (x, y, z), each (h, w)
+    z = P[2]
     gate = max_jump * jnp.maximum(z, 1e-3)
     ok = valid
-    nbr = {}
+    diff = {}  # neighbour minus centre, per component
     for name, shift, axis in (
         ("right", -1, 1),
         ("left", 1, 1),
         ("down", -1, 0),
         ("up", 1, 0),
     ):
-        nbr[name] = jnp.roll(points, shift, axis=axis)
-        ok &= jnp.roll(valid, shift, axis=axis) & (jnp.abs(nbr[name][..., 2] - z) < gate)
+        diff[name] = tuple(jnp.roll(c, shift, axis=axis) - c for c in P)
+        ok &= jnp.roll(valid, shift, axis=axis) & (jnp.abs(diff[name][2]) < gate)
     ok = ok.at[:, 0].set(False).at[:, -1].set(False).at[0, :].set(False).at[-1, :].set(False)
 
-    def unit(n):
-        norm = jnp.linalg.norm(n, axis=-1, keepdims=True)
-        return n / jnp.where(norm > 0.0, norm, 1.0), norm[..., 0] > 0.0
+    def cross(a, b):
+        return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
-    n1, ok1 = unit(jnp.cross(nbr["right"] - points, nbr["down"] - points))
-    n2, ok2 = unit(jnp.cross(nbr["left"] - points, nbr["up"] - points))
-    n, ok3 = unit(n1 + n2)
-    ok &= ok1 & ok2 & ok3 & (jnp.sum(n1 * n2, -1) > NORMAL_AGREEMENT_COS)
-    n = jnp.where(jnp.sum(n * points, -1, keepdims=True) > 0.0, -n, n)  # face the camera
-    return jnp.where(ok[..., None], n, 0.0), ok
+    def unit(n):
+        norm = jnp.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+        inv = 1.0 / jnp.where(norm > 0.0, norm, 1.0)
+        return tuple(c * inv for c in n), norm > 0.0
+
+    dot = lambda a, b: a[0] * b[0] + a[1] * b[1] + a[2] * b[2]  # noqa: E731
+    n1, ok1 = unit(cross(diff["right"], diff["down"]))
+    n2, ok2 = unit(cross(diff["left"], diff["up"]))
+    n, ok3 = unit(tuple(a + b for a, b in zip(n1, n2)))
+    ok &= ok1 & ok2 & ok3 & (dot(n1, n2) > NORMAL_AGREEMENT_COS)
+    sign = jnp.where(dot(n, P) > 0.0, -1.0, 1.0)  # face the camera
+    return jnp.stack([jnp.where(ok, sign * c, 0.0) for c in n], -1), ok
 
 
 def smooth_depth(depth: Float[Array, "h w"], radius: int, max_jump: Float[Array, ""]) -> Float[Array, "h w"]:
@@ -210,25 +216,28 @@ def point_to_plane(
     """Projective association of the current points into the reference image and the weighted
     point-to-plane normal equations at T_ref_cur."""
     h, w = ref.valid.shape
-    p = cur.points.reshape(-1, 3) @ T_ref_cur[:3, :3].T + T_ref_cur[:3, 3]
-    z = p[:, 2]
-    in_front = cur.valid.reshape(-1) & (z > 1e-3)
-    z_safe = jnp.where(in_front, z, 1.0)
-    u = jnp.round(K[0, 0] * p[:, 0] / z_safe + K[0, 2])
-    v = jnp.round(K[1, 1] * p[:, 1] / z_safe + K[1, 2])
+    # Component planes, not (N, 3) rows: XLA on CPUs vectorizes these 1.8x better.
+    x, y, z = (c.reshape(-1) for c in jnp.moveaxis(cur.points, -1, 0))
+    R, t = T_ref_cur[:3, :3], T_ref_cur[:3, 3]
+    px, py, pz = (R[i, 0] * x + R[i, 1] * y + R[i, 2] * z + t[i] for i in range(3))
+    in_front = cur.valid.reshape(-1) & (pz > 1e-3)
+    z_safe = jnp.where(in_front, pz, 1.0)
+    u = jnp.round(K[0, 0] * px / z_safe + K[0, 2])
+    v = jnp.round(K[1, 1] * py / z_safe + K[1, 2])
     inside = in_front & (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
     idx = jnp.where(inside, v.astype(jnp.int32) * w + u.astype(jnp.int32), 0)
     q = ref.points.reshape(-1, 3)[idx]
     n = ref.normals.reshape(-1, 3)[idx]
-    d = p - q
-    r = jnp.sum(n * d, -1)
-    inlier = inside & ref.normal_ok.reshape(-1)[idx] & (jnp.sum(d * d, -1) < params.max_dist**2)
+    dx, dy, dz = px - q[:, 0], py - q[:, 1], pz - q[:, 2]
+    nx, ny, nz = n[:, 0], n[:, 1], n[:, 2]
+    r = nx * dx + ny * dy + nz * dz
+    inlier = inside & ref.normal_ok.reshape(-1)[idx] & (dx * dx + dy * dy + dz * dz < params.max_dist**2)
     wgt = jnp.where(inlier, huber_weight(r, params.huber_k), 0.0)
-    J = jnp.concatenate([n, jnp.cross(p, n)], -1)  # (N, 6)
-    Jw = J * wgt[:, None]
+    J = jnp.stack([nx, ny, nz, py * nz - pz * ny, pz * nx - px * nz, px * ny - py * nx])  # (6, N): [n, p x n]
+    Jw = J * wgt
     return NormalEquations(
-        H=Jw.T @ J,
-        b=Jw.T @ r,
+        H=Jw @ J.T,
+        b=Jw @ r,
         n_inliers=jnp.sum(inlier.astype(r.dtype)),
         sq_residual=jnp.sum(jnp.where(inlier, r * r, 0.0)),
     )
