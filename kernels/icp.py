@@ -29,6 +29,7 @@ from jaxtyping import Array, Bool, Float
 
 from jaxquad.kernels._small_linalg import spd_solve
 from jaxquad.kernels.lie import SO3, se3_exp, skew
+from jaxquad.kernels.robust_twist import robust_weight
 
 # Cosine of the largest angle between a pixel's two one-sided normals (about 18 deg).
 NORMAL_AGREEMENT_COS = 0.95
@@ -200,12 +201,6 @@ def depth_frame(
     return tuple(out)
 
 
-def huber_weight(r: Float[Array, "*n"], k: Float[Array, ""]) -> Float[Array, "*n"]:
-    """IRLS weight of the Huber loss: 1 inside k, k/|r| outside."""
-    a = jnp.abs(r)
-    return jnp.where(a <= k, 1.0, k / jnp.maximum(a, 1e-12))
-
-
 def point_to_plane(
     T_ref_cur: Float[Array, "4 4"],
     cur: DepthLevel,
@@ -232,7 +227,7 @@ def point_to_plane(
     nx, ny, nz = n[:, 0], n[:, 1], n[:, 2]
     r = nx * dx + ny * dy + nz * dz
     inlier = inside & ref.normal_ok.reshape(-1)[idx] & (dx * dx + dy * dy + dz * dz < params.max_dist**2)
-    wgt = jnp.where(inlier, huber_weight(r, params.huber_k), 0.0)
+    wgt = jnp.where(inlier, robust_weight(jnp.abs(r), params.huber_k, "huber"), 0.0)
     J = jnp.stack([nx, ny, nz, py * nz - pz * ny, pz * nx - px * nz, px * ny - py * nx])  # (6, N): [n, p x n]
     Jw = J * wgt
     return NormalEquations(
