@@ -9,6 +9,12 @@ forces that moved the robot because the built-in models let the solver converge 
 (T, 4) is load-bearing contact: the foot's total normal force exceeds `GT_CONTACT_MIN_FORCE`
 (1 N). Geometric touch (penetration of the foot sphere) outlasts it by a few samples at lift-off,
 when the soft contact is still compressed but no longer pushes.
+
+One instant per sample: `mjx.step` computes the derived quantities (sensors, contacts and their
+forces, actuator forces, camera poses) at the state it starts from and then integrates, so after a
+step they describe the previous state. A sample therefore reports the joints and the base pose of
+that state (`RobotState.qpos_sensed`, `qvel_sensed`), at time t - dt; reading the integrated qpos and
+qvel instead put the gyro, accelerometer, contacts and camera one physics step (4 ms) behind them.
 """
 
 from __future__ import annotations
@@ -39,6 +45,9 @@ class RobotState(eqx.Module):
     """State of one robot between physics steps."""
 
     data: object  # mjx.Data
+    # qpos, qvel at which `data`'s derived quantities were computed (the last step's starting state)
+    qpos_sensed: Float[Array, " nq"]
+    qvel_sensed: Float[Array, " nv"]
     gait: GaitState
     route: RouteState
     imu: S.ImuState
@@ -94,6 +103,8 @@ def make_functions(fleet, gyro_adr: int, acc_adr: int) -> FleetFunctions:
         k_imu, key = jax.random.split(key)
         return RobotState(
             data=data,
+            qpos_sensed=data.qpos,
+            qvel_sensed=data.qvel,
             gait=gait_init(gait, setup.gait_params),
             route=route_init(setup.waypoints, qpos[qa : qa + 2]),
             imu=S.imu_init(setup.noise, k_imu),
@@ -127,6 +138,8 @@ def make_functions(fleet, gyro_adr: int, acc_adr: int) -> FleetFunctions:
         step_no = jnp.round(s.t / dt).astype(jnp.int32)
         return RobotState(
             data=jax.tree_util.tree_map(keep, d, d_new),
+            qpos_sensed=keep(s.qpos_sensed, d.qpos),
+            qvel_sensed=keep(s.qvel_sensed, d.qvel),
             gait=jax.tree_util.tree_map(keep, s.gait, g),
             route=s.route,
             imu=s.imu,
@@ -138,9 +151,9 @@ def make_functions(fleet, gyro_adr: int, acc_adr: int) -> FleetFunctions:
         )
 
     def sample(model, setup: RobotSetup, s: RobotState) -> tuple[RobotState, dict]:
-        d = s.data
+        d, qpos, qvel = s.data, s.qpos_sensed, s.qvel_sensed  # one instant (module docstring)
         key, k_imu, k_enc, k_tau = jax.random.split(s.key, 4)
-        quat = d.qpos[qa + 3 : qa + 7]
+        quat = qpos[qa + 3 : qa + 7]
         imu, (gyro, acc, quat_meas) = S.imu_step(
             setup.noise,
             s.imu,
@@ -150,7 +163,7 @@ def make_functions(fleet, gyro_adr: int, acc_adr: int) -> FleetFunctions:
             quat,
             log_dt,
         )
-        q, qd = S.encoders(setup.noise, k_enc, d.qpos[qpos_adr], d.qvel[dof_adr])
+        q, qd = S.encoders(setup.noise, k_enc, qpos[qpos_adr], qvel[dof_adr])
         tau = S.joint_torque(setup.noise, k_tau, d.actuator_force)
         # Force of each contact in its frame (normal first; the normal points from geom 0 to geom 1)
         # and in the world frame; summed per foot with the sign of the force on the foot geom.
@@ -162,7 +175,7 @@ def make_functions(fleet, gyro_adr: int, acc_adr: int) -> FleetFunctions:
         )
         gt_force = jnp.einsum("cf,cj->fj", sign, f_world)
         contact = jnp.abs(sign).T @ f_con[:, 0] > GT_CONTACT_MIN_FORCE
-        xy = d.qpos[qa : qa + 2]
+        xy = qpos[qa : qa + 2]
         inside = _inside_any_box(setup.boxes, xy)
         s = eqx.tree_at(lambda r: (r.imu, r.key, r.collided), s, (imu, key, s.collided | inside))
         out = dict(
@@ -172,7 +185,7 @@ def make_functions(fleet, gyro_adr: int, acc_adr: int) -> FleetFunctions:
             gyro=gyro,
             acc=acc,
             quat_wxyz=quat_meas,
-            gt_pose=jnp.concatenate([d.qpos[qa : qa + 3], quat]),
+            gt_pose=jnp.concatenate([qpos[qa : qa + 3], quat]),
             gt_contact=contact,
             gt_force=gt_force,
             valid=~s.fallen,

@@ -113,8 +113,9 @@ def rollout(
     fallen, collided = parallel.gather((state.fallen, state.collided))
     if not parallel.is_main():
         return None
+    # A sample describes the state its last physics step started from (`robot_step`), one step earlier.
     arrays.update(
-        t=(np.arange(T) + 1) * fleet.log_dt,
+        t=(np.arange(T) + 1) * fleet.log_dt - fleet.dt,
         robot=np.array(config.robot),
         joint_names=np.array(fleet.robot.joint_names),
         fallen=fallen[:n],
@@ -122,5 +123,7 @@ def rollout(
         world_index=np.arange(n) % config.n_worlds,
     )
     if config.depth:
-        arrays.update(depth_t=(np.arange(F) + 1) * fleet.frame_dt, K=fleet.K, T_base_camera=fleet.T_base_camera)
+        arrays.update(
+            depth_t=(np.arange(F) + 1) * fleet.frame_dt - fleet.dt, K=fleet.K, T_base_camera=fleet.T_base_camera
+        )
     return FleetLog(arrays, config, fleet.worlds)

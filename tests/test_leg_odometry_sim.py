@@ -37,7 +37,7 @@ def _estimate(log, **variant):
     return jax.tree.map(lambda a: np.asarray(a)[0], out)
 
 
-@pytest.mark.slow  # one MJX fleet compile and two pipeline compiles: minutes on two shared cores
+@pytest.mark.slow  # one MJX fleet compile and three pipeline compiles: minutes on two shared cores
 def test_rolling_contact_and_floor_reduce_the_error_against_simulated_truth(walk):
     t, gt = np.asarray(walk["t"]), np.asarray(walk["gt_pose"])[0]
     R = Rotation.from_quat(gt[:, [4, 5, 6, 3]]).as_matrix()
@@ -54,6 +54,24 @@ def test_rolling_contact_and_floor_reduce_the_error_against_simulated_truth(walk
     )
     assert abs(1 - ratio_full) < 0.5 * abs(1 - ratio_point)
     assert ratio_point < 0.96
-    # The floor bounds the height; the integrated one sinks.
+    # The floor bounds the height; without it the same model's integrated height sinks.
     z_err = lambda e: np.abs(e.p_world_base[:, 2] - gt[:, 2]).max()  # noqa: E731
-    assert z_err(full) < 0.03 < z_err(point)
+    assert z_err(full) < 0.03 < z_err(_estimate(walk, floor=False))
+
+
+@pytest.mark.slow  # shares the walk's MJX fleet compile
+def test_a_sample_describes_one_instant(walk):
+    # MuJoCo integrates q += dt qvel with the state's new velocity, so the base rotation from sample k-1
+    # to k is the angular velocity of sample k's state: the gyro of the same sample must read it (up to
+    # its noise and bias, a few mrad/s), not the one of the sample before (tenths of rad/s apart in a trot).
+    from jaxquad.estimate.inputs import R_base_imu
+    from jaxquad.robots import load
+
+    t, gt = np.asarray(walk["t"], np.float64), np.asarray(walk["gt_pose"], np.float64)[0]
+    R = Rotation.from_quat(gt[:, [4, 5, 6, 3]])
+    omega = (R[:-1].inv() * R[1:]).as_rotvec() / np.diff(t)[:, None]  # base frame, samples 1..T-1
+    gyro = np.asarray(walk["gyro"], np.float64)[0] @ R_base_imu(load("go2")).T
+    rms = lambda a, b: np.sqrt(np.mean((a - b) ** 2))  # noqa: E731
+    same, late = rms(gyro[2:], omega[1:]), rms(gyro[2:], omega[:-1])
+    assert same < 0.02 and late > 5 * same
+    assert t[0] == 0.0  # the first sample is the initial state
