@@ -9,6 +9,12 @@ through an integral term, the gyro bias (Mahony, Hamel, Pflimlin, IEEE TAC 2008,
 with a_n the normalized accelerometer reading and R = R_world_base. Yaw is unobservable from
 these sensors and starts at 0. A reading whose norm is off g by more than `acc_gate` (relative)
 or that is not finite does not correct; a gyro reading that is not finite holds the attitude.
+
+When the robot reports its attitude R_y (an onboard filter's quaternion), `step_toward` is the same
+filter with the error measured against it, e = log(R^T R_y) (the passive complementary filter of the
+same paper, eq. 13, with the exact logarithm for vex(P_a(R^T R_y))): the gyro carries the attitude
+between reports, whose per-sample noise it smooths out, and the integral term estimates the gyro
+bias, which the leg odometry's omega x p would otherwise read as base velocity.
 """
 
 from __future__ import annotations
@@ -33,6 +39,14 @@ class AttitudeParams(eqx.Module):
     @classmethod
     def default(cls) -> "AttitudeParams":
         return cls(kp=jnp.asarray(1.0), ki=jnp.asarray(0.1), acc_gate=jnp.asarray(0.3))
+
+    @classmethod
+    def toward_report(cls) -> "AttitudeParams":
+        """Gains of `step_toward`: a reported attitude is a cleaner reference than the accelerometer (no
+        motion disturbs it), so the loop can be faster; ki = kp^2 / 4 makes it critically damped, time
+        constant 1 / (kp / 2) = 1 s: the report's per-sample noise is averaged over ~250 samples at
+        250 Hz and the gyro bias is found within seconds (acc_gate unused)."""
+        return cls(kp=jnp.asarray(2.0), ki=jnp.asarray(1.0), acc_gate=jnp.asarray(0.3))
 
 
 class AttitudeState(eqx.Module):
@@ -78,6 +92,29 @@ def step(
     q = q / jnp.linalg.norm(q)
     bias = state.gyro_bias - params.ki * err * dt_used
     return AttitudeState(q_world_base=q, gyro_bias=bias), jnp.stack([gyro_ok, acc_ok])
+
+
+def step_toward(
+    params: AttitudeParams,
+    state: AttitudeState,
+    gyro: Float[Array, "3"],
+    q_meas_wxyz: Float[Array, "4"],
+    dt: Float[Array, ""],
+) -> tuple[AttitudeState, Bool[Array, "2"]]:
+    """Advance by dt seconds, corrected toward the reported attitude q_meas (module docstring; acc_gate
+    unused). A non-finite or non-unit report does not correct. Returns the state and (gyro used,
+    attitude used)."""
+    gyro_ok = jnp.all(jnp.isfinite(gyro)) & jnp.isfinite(dt) & (dt > 0)
+    meas_ok = jnp.all(jnp.isfinite(q_meas_wxyz)) & (jnp.abs(jnp.sum(q_meas_wxyz**2) - 1.0) < 0.1) & gyro_ok
+    q_meas = jnp.where(meas_ok, q_meas_wxyz, state.q_world_base)
+    err = (SO3(state.q_world_base).inverse() @ SO3(q_meas / jnp.linalg.norm(q_meas))).log()  # base frame
+    err = jnp.where(meas_ok, err, 0.0)
+    dt_used = jnp.where(gyro_ok, dt, 0.0)
+    omega = jnp.where(gyro_ok, gyro, 0.0) - state.gyro_bias + params.kp * err
+    q = (SO3(state.q_world_base) @ SO3.exp(omega * dt_used)).wxyz
+    q = q / jnp.linalg.norm(q)
+    bias = state.gyro_bias - params.ki * err * dt_used
+    return AttitudeState(q_world_base=q, gyro_bias=bias), jnp.stack([gyro_ok, meas_ok])
 
 
 def estimate_attitude(

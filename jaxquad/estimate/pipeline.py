@@ -2,7 +2,8 @@
 
 Per sample k (dt = t_k - t_{k-1}):
   1. joint velocities: the log's qd, or the causal differentiating filter on q;
-  2. attitude: the log's quat_wxyz, or the Mahony filter on gyro and accelerometer;
+  2. attitude: the Mahony filter on the gyro, corrected toward the log's quat_wxyz or, without one,
+     by the accelerometer; its gyro-bias estimate is removed from the gyro used below;
   3. contacts: ground truth, the robot's sensor flags, or the momentum observer (plain or mixed;
      by default on the actuated joints' momentum rows, estimating full 3D foot forces and
      thresholding their z components, with the model's joint damping and friction in tau_bar:
@@ -17,7 +18,8 @@ Per sample k (dt = t_k - t_{k-1}):
      fused with the floor under the stance feet (kernels.floor, `PipelineConfig.floor`).
 
 Bad data never reaches the trajectory as NaN; each case is flagged per sample (`Flags`):
-non-finite joint readings hold the joint's last value; non-finite gyro/acc hold the attitude;
+non-finite joint readings hold the joint's last value; a non-finite gyro reading is replaced by the last
+one, and a non-finite accelerometer reading or reported attitude does not correct the attitude;
 saturated torques or non-finite torques skip the observer step (contacts held); a step with fewer
 than `min_stance` feet or an invalid solve reuses the last good twist; a time gap longer than
 `max_gap_s` is not integrated (pose held) and restarts the observer; a robot whose base tilts past
@@ -167,21 +169,29 @@ def pipeline_step(
     acc = R_imu @ acc_imu
     if config.has_attitude:
         qa_ok = jnp.all(jnp.isfinite(quat_in)) & (jnp.abs(jnp.sum(quat_in**2) - 1.0) < 0.1)
-        quat = jnp.where(qa_ok, quat_in, c.pose.q_world_base)
-        att_state = c.att
+        att_state, _ = att.step_toward(params.attitude_report, c.att, gyro, quat_in, dt_int)
+        # Across a gap the gyro carried nothing: restart at the report.
+        restart = gap & qa_ok
+        att_state = eqx.tree_at(
+            lambda s: s.q_world_base, att_state, jnp.where(restart, quat_in, att_state.q_world_base)
+        )
         bad_imu = ~(qa_ok & gyro_ok)
+        # A fall shows at once in the report; the filter follows it within about 1 / kp.
+        up_z = jnp.where(qa_ok, rotation_matrix(jnp.where(qa_ok, quat_in, 1.0))[2, 2], 1.0)
     else:
         att_state, used = att.step(params.attitude, c.att, gyro, acc, dt_int)
-        quat = att_state.q_world_base
         bad_imu = ~(used[0] | first) | ~jnp.all(jnp.isfinite(acc_imu))
-    quat = quat / jnp.linalg.norm(quat)
+        up_z = 1.0
+    quat = att_state.q_world_base / jnp.linalg.norm(att_state.q_world_base)
+    omega_imu = gyro - att_state.gyro_bias  # the filter's bias estimate removed
     R_world_base = rotation_matrix(quat)
-    fallen = c.fallen | ~valid_in | (R_world_base[2, 2] < jnp.cos(params.fall_tilt_rad))
+    up_z = jnp.minimum(up_z, R_world_base[2, 2])  # world z of the base's z axis
+    fallen = c.fallen | ~valid_in | (up_z < jnp.cos(params.fall_tilt_rad))
 
     # 3. contacts.
     tau_ok = torque_ok(robot, tau, params.torque_saturation)
     # Full state for the model: base velocity from the last twist (world linear, body angular).
-    qpos, qvel = full_state(robot, c.pose.p_world_base, quat, q_use, R_world_base @ c.v_last, gyro, qd_use)
+    qpos, qvel = full_state(robot, c.pose.p_world_base, quat, q_use, R_world_base @ c.v_last, omega_imu, qd_use)
     if observer:
         tau_obs = jnp.where(tau_ok, tau, 0.0)
         p_mom, tau_bar, J_z = dynamics.momentum_terms(
@@ -212,7 +222,7 @@ def pipeline_step(
     rob = robust_body_twist(
         p_foot,
         v_foot,
-        gyro,
+        omega_imu,
         weight,
         params.imu_weight,
         params.min_stance,
@@ -227,7 +237,7 @@ def pipeline_step(
     tw = rob.twist
     tw_ok = tw.valid & tw.linear_observed
     v_base = jnp.where(tw_ok, tw.v_base, c.v_last)
-    omega = jnp.where(tw_ok, tw.omega_base, gyro)
+    omega = jnp.where(tw_ok, tw.omega_base, omega_imu)
 
     # 6. pose: the previous sample's twist over dt; held once fallen.
     moved = odometry_step(c.pose, c.v_last, c.omega_last, dt_int, quat)

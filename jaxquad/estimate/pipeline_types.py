@@ -24,7 +24,8 @@ class PipelineParams(eqx.Module):
     """Every tunable number of the pipeline (traced leaves)."""
 
     observer: ObserverParams
-    attitude: att.AttitudeParams
+    attitude: att.AttitudeParams  # the attitude filter on the accelerometer (logs without an attitude)
+    attitude_report: att.AttitudeParams  # the same filter toward the log's attitude (`attitude.step_toward`)
     differentiator: dif.DifferentiatorParams
     imu_weight: Float[Array, ""]  # weight of the gyro rows in the twist least squares
     min_stance: Float[Array, ""]  # effective stance count needed for the linear velocity
@@ -42,6 +43,7 @@ class PipelineParams(eqx.Module):
         return cls(
             observer=ObserverParams.paper(n_feet, mode),
             attitude=att.AttitudeParams.default(),
+            attitude_report=att.AttitudeParams.toward_report(),
             differentiator=dif.DifferentiatorParams.default(),
             imu_weight=jnp.asarray(1.0),
             min_stance=jnp.asarray(1.5),
@@ -99,7 +101,7 @@ class Flags(eqx.Module):
     """Per-sample flags of what was detected and handled (leading axes B: time T, robots N)."""
 
     bad_joints: Bool[Array, "*B"]  # some q (or qd) not finite: last value held
-    bad_imu: Bool[Array, "*B"]  # gyro or attitude not finite: attitude held
+    bad_imu: Bool[Array, "*B"]  # gyro, acc or reported attitude not usable: the last gyro / the gyro alone carries on
     bad_torque: Bool[Array, "*B"]  # torque not finite or saturated: observer step skipped
     gap: Bool[Array, "*B"]  # dt > max_gap_s (or dt <= 0): not integrated
     no_stance: Bool[Array, "*B"]  # twist not observed: last good twist held
