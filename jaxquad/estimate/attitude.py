@@ -70,6 +70,16 @@ def init(q_world_base: Float[Array, "4"]) -> AttitudeState:
     return AttitudeState(q_world_base=q_world_base, gyro_bias=jnp.zeros(3, dtype=q_world_base.dtype))
 
 
+def _correct(params: AttitudeParams, state: AttitudeState, gyro, gyro_ok, err, dt) -> AttitudeState:
+    """The filter's update for an attitude error `err` (base frame, rad): the gyro less the bias estimate
+    plus kp err integrated over dt (nothing when the gyro is unusable), the bias driven by -ki err."""
+    dt_used = jnp.where(gyro_ok, dt, 0.0)
+    omega = jnp.where(gyro_ok, gyro, 0.0) - state.gyro_bias + params.kp * err
+    q = (SO3(state.q_world_base) @ SO3.exp(omega * dt_used)).wxyz
+    q = q / jnp.linalg.norm(q)
+    return AttitudeState(q_world_base=q, gyro_bias=state.gyro_bias - params.ki * err * dt_used)
+
+
 def step(
     params: AttitudeParams,
     state: AttitudeState,
@@ -86,12 +96,7 @@ def step(
 
     up_base = rotation_matrix(state.q_world_base)[2]  # R^T e_z
     err = jnp.where(acc_ok, jnp.cross(a_n, up_base), 0.0)
-    dt_used = jnp.where(gyro_ok, dt, 0.0)
-    omega = jnp.where(gyro_ok, gyro, 0.0) - state.gyro_bias + params.kp * err
-    q = (SO3(state.q_world_base) @ SO3.exp(omega * dt_used)).wxyz
-    q = q / jnp.linalg.norm(q)
-    bias = state.gyro_bias - params.ki * err * dt_used
-    return AttitudeState(q_world_base=q, gyro_bias=bias), jnp.stack([gyro_ok, acc_ok])
+    return _correct(params, state, gyro, gyro_ok, err, dt), jnp.stack([gyro_ok, acc_ok])
 
 
 def step_toward(
@@ -109,12 +114,7 @@ def step_toward(
     q_meas = jnp.where(meas_ok, q_meas_wxyz, state.q_world_base)
     err = (SO3(state.q_world_base).inverse() @ SO3(q_meas / jnp.linalg.norm(q_meas))).log()  # base frame
     err = jnp.where(meas_ok, err, 0.0)
-    dt_used = jnp.where(gyro_ok, dt, 0.0)
-    omega = jnp.where(gyro_ok, gyro, 0.0) - state.gyro_bias + params.kp * err
-    q = (SO3(state.q_world_base) @ SO3.exp(omega * dt_used)).wxyz
-    q = q / jnp.linalg.norm(q)
-    bias = state.gyro_bias - params.ki * err * dt_used
-    return AttitudeState(q_world_base=q, gyro_bias=bias), jnp.stack([gyro_ok, meas_ok])
+    return _correct(params, state, gyro, gyro_ok, err, dt), jnp.stack([gyro_ok, meas_ok])
 
 
 def estimate_attitude(
