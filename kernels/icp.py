@@ -211,7 +211,7 @@ def point_to_plane(
     """Projective association of the current points into the reference image and the weighted
     point-to-plane normal equations at T_ref_cur."""
     h, w = ref.valid.shape
-    # Component planes, not (N, 3) rows: XLA on CPUs vectorizes these 1.8x better.
+    # Component planes, not (N, 3) rows: XLA on CPUs vectorizes these better.
     x, y, z = (c.reshape(-1) for c in jnp.moveaxis(cur.points, -1, 0))
     R, t = T_ref_cur[:3, :3], T_ref_cur[:3, 3]
     px, py, pz = (R[i, 0] * x + R[i, 1] * y + R[i, 2] * z + t[i] for i in range(3))

@@ -70,6 +70,11 @@ def init(q_world_base: Float[Array, "4"]) -> AttitudeState:
     return AttitudeState(q_world_base=q_world_base, gyro_bias=jnp.zeros(3, dtype=q_world_base.dtype))
 
 
+def report_usable(q_wxyz: Float[Array, "4"]) -> Bool[Array, ""]:
+    """A reported attitude is used when it is finite and within 10 % of a unit quaternion's squared norm."""
+    return jnp.all(jnp.isfinite(q_wxyz)) & (jnp.abs(jnp.sum(q_wxyz**2) - 1.0) < 0.1)
+
+
 def _correct(params: AttitudeParams, state: AttitudeState, gyro, gyro_ok, err, dt) -> AttitudeState:
     """The filter's update for an attitude error `err` (base frame, rad): the gyro less the bias estimate
     plus kp err integrated over dt (nothing when the gyro is unusable), the bias driven by -ki err."""
@@ -110,7 +115,7 @@ def step_toward(
     unused). A non-finite or non-unit report does not correct. Returns the state and (gyro used,
     attitude used)."""
     gyro_ok = jnp.all(jnp.isfinite(gyro)) & jnp.isfinite(dt) & (dt > 0)
-    meas_ok = jnp.all(jnp.isfinite(q_meas_wxyz)) & (jnp.abs(jnp.sum(q_meas_wxyz**2) - 1.0) < 0.1) & gyro_ok
+    meas_ok = report_usable(q_meas_wxyz) & gyro_ok
     q_meas = jnp.where(meas_ok, q_meas_wxyz, state.q_world_base)
     err = (SO3(state.q_world_base).inverse() @ SO3(q_meas / jnp.linalg.norm(q_meas))).log()  # base frame
     err = jnp.where(meas_ok, err, 0.0)

@@ -168,7 +168,7 @@ def pipeline_step(
     gyro = jnp.where(gyro_ok, R_imu @ jnp.where(gyro_ok, gyro_imu, 0.0), c.gyro_last)
     acc = R_imu @ acc_imu
     if config.has_attitude:
-        qa_ok = jnp.all(jnp.isfinite(quat_in)) & (jnp.abs(jnp.sum(quat_in**2) - 1.0) < 0.1)
+        qa_ok = att.report_usable(quat_in)
         att_state, _ = att.step_toward(params.attitude_report, c.att, gyro, quat_in, dt_int)
         # Across a gap the gyro carried nothing: restart at the report.
         restart = gap & qa_ok
