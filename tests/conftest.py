@@ -4,26 +4,14 @@ import os
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
 
-import atexit  # noqa: E402
 import functools  # noqa: E402
 import gc  # noqa: E402
 import inspect  # noqa: E402
-import shutil  # noqa: E402
-import tempfile  # noqa: E402
 
 import jax  # noqa: E402
 import jaxlie  # noqa: E402
 import jaxtyping  # noqa: E402
 import pytest  # noqa: E402
-
-# One on-disk XLA cache per test session, shared by the pytest-xdist workers (they inherit this environment) and
-# by the CLI subprocesses the tests start: many modules compile the same simulator and estimator programs, and
-# each module drops its in-memory executables when it ends (below). The session that made it removes it.
-if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
-    _cache_dir = tempfile.mkdtemp(prefix="jaxquad-tests-xla-")
-    os.environ["JAX_COMPILATION_CACHE_DIR"] = _cache_dir
-    atexit.register(shutil.rmtree, _cache_dir, ignore_errors=True)
-jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
 
 # Strict dtype promotion: mixing dtypes (float32 with float64, ints or bools with floats) raises instead of
 # silently widening, so every cast in jaxquad is explicit. Passing strict means identical results under the
