@@ -5,7 +5,8 @@ Runs the estimation pipeline over each log for every variant:
   rolling   contact points of the rolling feet
   robust    + Huber reweighting of the stance feet
   floor     + base height from the floor under the stance feet
-  prior     + the feet also weighed against the previous sample's velocity (every correction: the default)
+  prior     + the feet also weighed against the previous sample's velocity
+  settle    + each foot's weight ramped up over its first 32 ms of stance (every correction: the default)
 and prints one Markdown row per (log, contacts, variant) of means over the robots that did not fall:
 segment drift (`drift_pct`: KITTI t_rel over 2, 5 and 10 m segments), end-point drift in % of the
 horizontal distance, path-length ratio (estimated over true horizontal path, both sampled every 1 s:
@@ -37,11 +38,12 @@ import sys
 import numpy as np
 
 VARIANTS = {
-    "point": dict(rolling=False, robust="none", robust_prior=False, floor=False),
-    "rolling": dict(rolling=True, robust="none", robust_prior=False, floor=False),
-    "robust": dict(rolling=True, robust="huber", robust_prior=False, floor=False),
-    "floor": dict(rolling=True, robust="huber", robust_prior=False, floor=True),
-    "prior": dict(rolling=True, robust="huber", robust_prior=True, floor=True),
+    "point": dict(rolling=False, robust="none", robust_prior=False, floor=False, settle=False),
+    "rolling": dict(rolling=True, robust="none", robust_prior=False, floor=False, settle=False),
+    "robust": dict(rolling=True, robust="huber", robust_prior=False, floor=False, settle=False),
+    "floor": dict(rolling=True, robust="huber", robust_prior=False, floor=True, settle=False),
+    "prior": dict(rolling=True, robust="huber", robust_prior=True, floor=True, settle=False),
+    "settle": dict(rolling=True, robust="huber", robust_prior=True, floor=True, settle=True),
 }
 _CHI2_3_95 = 7.815
 

@@ -118,6 +118,31 @@ def test_fixed_feet_motion_is_recovered(robot, fixed_feet_log):
     assert not np.asarray(out.flags.fallen[0]).any()
 
 
+def test_a_foot_that_touches_down_ramps_into_the_twist(robot, fixed_feet_log):
+    # Foot 0 lifts at sample 100 and is down again from sample 150: its twist weight is its stance
+    # time over settle_s (5, 10, ... ms of 32 at 200 Hz), then 1. Feet down when the log starts count
+    # as settled; with `settle` off each foot's weight is its contact.
+    log = dict(fixed_feet_log)
+    contact = log["gt_contact"].copy()
+    contact[100:150, 0] = False
+    log["gt_contact"] = contact
+    inputs, config = pipeline.inputs_from_log(robot, log, "truth")
+    config = dataclasses.replace(config, rolling=False)  # pinned feet, as `run`
+    params = pipeline.PipelineParams.default()
+    weight = {
+        settle: np.asarray(
+            pipeline.estimate_fleet(robot, dataclasses.replace(config, settle=settle), params, inputs).twist_weight[0]
+        )
+        for settle in (True, False)
+    }
+    expected = contact.astype(np.float64)
+    k = np.arange(150, 160)
+    expected[k, 0] = np.minimum((k - 149) / RATE_HZ / float(params.settle_s), 1.0)
+    np.testing.assert_allclose(weight[True], expected, atol=1e-5)
+    assert 0.0 < weight[True][150, 0] < 0.2 and weight[True][160, 0] == 1.0
+    np.testing.assert_array_equal(weight[False], contact)
+
+
 def test_bad_data_is_flagged_and_never_reaches_the_trajectory(robot, fixed_feet_log):
     """A fleet of two: robot 0 clean, robot 1 with NaN joints, NaN gyro, a fall and a time gap."""
     clean = fixed_feet_log

@@ -54,6 +54,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--robust none)",
     )
     parser.add_argument(
+        "--no-settle",
+        action="store_true",
+        help="give a foot its full twist weight from its first stance sample instead of ramping it up over "
+        "its first 32 ms, while it may still slide (default: ramp)",
+    )
+    parser.add_argument(
         "--no-floor",
         action="store_true",
         help="integrate the base height instead of fusing it with the floor under the stance feet (default: fuse)",
@@ -84,6 +90,7 @@ def run(args: argparse.Namespace) -> int:
         robust=args.robust,
         robust_prior=not args.no_robust_prior,
         floor=not args.no_floor,
+        settle=not args.no_settle,
     )
     with progress_bar("estimate", "robot") as progress:
         summary = run_estimate(

@@ -13,7 +13,8 @@ Per sample k (dt = t_k - t_{k-1}):
      rolling on the floor (kernels.rolling_contact, `PipelineConfig.rolling`);
   5. the twist least squares on the stance feet and the gyro, reweighted against slipping feet
      (kernels.robust_body_twist, `PipelineConfig.robust`; each foot also against the previous
-     sample's velocity, `robust_prior`), with its covariance and slip flags;
+     sample's velocity, `robust_prior`), with its covariance and slip flags; a foot's weight ramps
+     up over its first `settle_s` of stance (`PipelineConfig.settle`);
   6. the pose: the twist of sample k-1 integrated over dt on SE(3), orientation from step 2, height
      fused with the floor under the stance feet (kernels.floor, `PipelineConfig.floor`).
 
@@ -59,6 +60,9 @@ from jaxquad.estimate.pipeline_types import (
 from jaxquad.kernels import ContactEstimate, ContactObserver, ObserverParams, robust_body_twist, rolling_contact
 from jaxquad.kernels import floor as flr
 from jaxquad.kernels.lie import SO3, rotation_matrix
+
+# Stance time (s) of a foot already down when the log starts (it counts as settled); also the clock's cap.
+_SETTLED_S = 1e3
 
 
 def observer_params_for_axes(params: ObserverParams, axes: str) -> ObserverParams:
@@ -129,6 +133,7 @@ def pipeline_init(
         qd_last=jnp.zeros_like(q0),
         gyro_last=zeros3,
         weight_last=jnp.zeros(n_feet, first.gyro.dtype),
+        stance_s=jnp.full(n_feet, _SETTLED_S, first.gyro.dtype),
         v_last=zeros3,
         omega_last=zeros3,
         fallen=jnp.asarray(False),
@@ -214,6 +219,12 @@ def pipeline_step(
         contact, contact_soft = weight > 0.5, weight
         force_z = force_f = jnp.zeros_like(weight)
 
+    # A foot that has just touched down still slides (simulated: up to 0.47 m/s on its first sample, which
+    # reads as a slower base): its twist weight ramps up over its first settle_s of stance.
+    stance_s = jnp.where(contact, jnp.minimum(c.stance_s + dt_int, _SETTLED_S), 0.0)
+    settled = jnp.clip(stance_s / jnp.maximum(params.settle_s, 1e-6), 0.0, 1.0)
+    w_twist = weight * settled if config.settle else weight
+
     # 4-5. kinematics and twist.
     legs = dynamics.leg_kinematics(robot, qpos, qvel)
     radius = jnp.asarray(robot.foot_radius if config.rolling else np.zeros(n_feet), qpos.dtype)
@@ -223,7 +234,7 @@ def pipeline_step(
         p_foot,
         v_foot,
         omega_imu,
-        weight,
+        w_twist,
         params.imu_weight,
         params.min_stance,
         params.robust_scale,
@@ -260,6 +271,7 @@ def pipeline_step(
         qd_last=qd_use,
         gyro_last=gyro,
         weight_last=weight,
+        stance_s=stance_s,
         v_last=jnp.where(fallen, 0.0, v_base),
         omega_last=jnp.where(fallen, 0.0, omega),
         fallen=fallen,
@@ -284,6 +296,7 @@ def pipeline_step(
         force_z_filtered=force_f,
         qd=qd_use,
         cov_v_base=tw.cov_v_base,
+        twist_weight=w_twist,
         slip=rob.slip,
         flags=flags,
     )

@@ -35,6 +35,7 @@ class PipelineParams(eqx.Module):
     robust_scale: Float[Array, ""]  # m/s: scale of the twist's robust loss (kernels.robust_twist)
     sigma_prior: Float[Array, ""]  # m/s: prior foot-velocity noise of the twist covariance
     prior_dof: Float[Array, ""]  # its weight in degrees of freedom
+    settle_s: Float[Array, ""]  # s: a foot's twist weight ramps from 0 to 1 over its first settle_s of stance
     floor: flr.FloorParams  # height filter (kernels.floor)
 
     @classmethod
@@ -51,8 +52,9 @@ class PipelineParams(eqx.Module):
             fall_tilt_rad=jnp.asarray(1.2),
             torque_saturation=jnp.asarray(0.99),
             robust_scale=jnp.asarray(0.1),
-            sigma_prior=jnp.asarray(0.045),
+            sigma_prior=jnp.asarray(0.039),
             prior_dof=jnp.asarray(3.0),
+            settle_s=jnp.asarray(0.032),
             floor=flr.FloorParams.default(),
         )
 
@@ -79,12 +81,14 @@ class PipelineConfig:
     # leg odometry: contact points of round feet rolling on the floor (radius from the model);
     # robust loss over stance feet ("none", "huber", "cauchy") with `robust_iters` reweightings,
     # against the previous sample's twist too (`robust_prior`: feet sliding at touchdown or lift-off);
-    # base height from the floor under the stance feet (flat ground).
+    # base height from the floor under the stance feet (flat ground); each foot's weight ramped up over
+    # its first `PipelineParams.settle_s` of stance (`settle`: a foot that has just touched down still slides).
     rolling: bool = True
     robust: str = "huber"
     robust_iters: int = 3
     robust_prior: bool = True
     floor: bool = True
+    settle: bool = True
 
     def __post_init__(self):
         if self.contacts not in CONTACT_SOURCES:
@@ -121,6 +125,7 @@ class Estimate(eqx.Module):
     force_z_filtered: Float[Array, "*B F"]
     qd: Float[Array, "*B nu"]  # joint velocities used
     cov_v_base: Float[Array, "*B 3 3"]  # (m/s)^2: covariance of the twist's v_base (that sample's solve)
+    twist_weight: Float[Array, "*B F"]  # each foot's weight in the twist: the contact weight, ramped over settle_s
     slip: Bool[Array, "*B F"]  # stance feet the robust twist flagged as slipping
     flags: Flags
 
@@ -136,6 +141,7 @@ class PipelineState(eqx.Module):
     qd_last: Float[Array, "nu"]
     gyro_last: Float[Array, "3"]
     weight_last: Float[Array, "F"]
+    stance_s: Float[Array, "F"]  # s each foot has been in contact (0 in swing)
     v_last: Float[Array, "3"]
     omega_last: Float[Array, "3"]
     fallen: Bool[Array, ""]

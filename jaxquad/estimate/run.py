@@ -43,6 +43,7 @@ _FIELDS = (
     "force_z_filtered",
     "qd",
     "cov_v_base",
+    "twist_weight",
     "slip",
 )
 SUMMARY_KIND = "jaxquad estimate"
@@ -73,8 +74,8 @@ def estimate_log(
 ):
     """Run the pipeline over a log (a dict, a loaded `.npz` or a `jaxquad.sim.FleetLog`); returns
     (robot, config, Estimate as NumPy with a leading robot axis). odometry: leg-odometry choices of
-    `PipelineConfig` (rolling, robust, robust_iters, robust_prior, floor) to override; devices: how many devices
-    the robots are split over (default all)."""
+    `PipelineConfig` (rolling, robust, robust_iters, robust_prior, floor, settle) to override; devices: how
+    many devices the robots are split over (default all)."""
     from jaxquad import parallel
     from jaxquad.estimate import pipeline
     from jaxquad.robots import load
