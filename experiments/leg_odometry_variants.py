@@ -20,10 +20,12 @@ value is 3 for a consistent covariance), with the fraction of samples inside the
 bound (7.81).
 
     python experiments/leg_odometry_variants.py LOG.npz [LOG.npz ...] [--contacts truth mixed]
-        [--params tuned.yaml] [--variants point rolling robust floor] [--sigma-prior 0.04 0.06] [--json out.json]
+        [--params tuned.yaml] [--variants point rolling robust floor] [--sigma-prior 0.04 0.06]
+        [--settle-ms 24 32 48] [--json out.json]
 
 `--sigma-prior` sweeps the prior noise level of the twist covariance (a row per value): the NEES
-column shows which value makes the covariance consistent for a gait.
+column shows which value makes the covariance consistent for a gait. `--settle-ms` sweeps the time
+over which a touching-down foot's weight ramps up (a "settle" row per value).
 """
 
 from __future__ import annotations
@@ -88,7 +90,14 @@ def score_robot(t, est: dict, gt_pose: np.ndarray, valid: np.ndarray) -> dict:
     }
 
 
-def run(log_path: str, contacts: str, variant: str, params_path: str | None, sigma_prior: float | None = None) -> dict:
+def run(
+    log_path: str,
+    contacts: str,
+    variant: str,
+    params_path: str | None,
+    sigma_prior: float | None = None,
+    settle_ms: float | None = None,
+) -> dict:
     import jax
 
     from jaxquad.estimate import pipeline
@@ -103,6 +112,8 @@ def run(log_path: str, contacts: str, variant: str, params_path: str | None, sig
     params = load_params(params_path, len(robot.foot_names), contacts)
     if sigma_prior is not None:
         params = dataclasses.replace(params, sigma_prior=np.float32(sigma_prior))
+    if settle_ms is not None:
+        params = dataclasses.replace(params, settle_s=np.float32(settle_ms / 1000.0))
     out = jax.tree.map(np.asarray, pipeline.estimate_fleet(robot, config, params, inputs))
     t = np.asarray(log["t"], np.float64)
     rows = []
@@ -153,6 +164,15 @@ def main(argv=None) -> int:
         help="prior foot-velocity noise of the twist covariance, m/s; several values sweep it "
         "(default: the pipeline's, PipelineParams.default().sigma_prior)",
     )
+    ap.add_argument(
+        "--settle-ms",
+        nargs="+",
+        type=float,
+        default=[None],
+        metavar="MS",
+        help="time over which a touching-down foot's twist weight ramps from 0 to 1, ms; several values sweep "
+        "it (default: the pipeline's, PipelineParams.default().settle_s)",
+    )
     ap.add_argument("--json", default=None, help="also write the rows to this JSON file")
     args = ap.parse_args(argv)
     # One-line errors before any simulation or compile.
@@ -162,6 +182,9 @@ def main(argv=None) -> int:
     bad = [s for s in args.sigma_prior if s is not None and not (math.isfinite(s) and s > 0)]
     if bad:
         ap.error(f"--sigma-prior values must be positive, got {bad}")
+    bad = [s for s in args.settle_ms if s is not None and not (math.isfinite(s) and s >= 0)]
+    if bad:
+        ap.error(f"--settle-ms values must be >= 0, got {bad}")
     if args.json:
         from jaxquad.io.atomic import check_output_file
 
@@ -199,11 +222,14 @@ def main(argv=None) -> int:
         for contacts in args.contacts:
             for variant in args.variants:
                 for sigma in args.sigma_prior:
-                    r = run(log, contacts, variant, args.params, sigma) | {"sigma_prior": sigma}
-                    rows.append(r)
-                    vals = " | ".join(f"{r[k]:.3f}" for k in keys)
-                    label = variant if sigma is None else f"{variant}, sigma_prior {sigma:g}"
-                    print(f"| {log} | {r['robot']} | {contacts} | {label} | {r['robots']} | {vals} |", flush=True)
+                    for settle in args.settle_ms if variant == "settle" else [None]:  # only it ramps
+                        r = run(log, contacts, variant, args.params, sigma, settle)
+                        r |= {"sigma_prior": sigma, "settle_ms": settle}
+                        rows.append(r)
+                        vals = " | ".join(f"{r[k]:.3f}" for k in keys)
+                        label = variant + ("" if sigma is None else f", sigma_prior {sigma:g}")
+                        label += "" if settle is None else f", settle {settle:g} ms"
+                        print(f"| {log} | {r['robot']} | {contacts} | {label} | {r['robots']} | {vals} |", flush=True)
     if args.json:
         from jaxquad.io.atomic import atomic_write_text
 
