@@ -75,6 +75,11 @@ def report_usable(q_wxyz: Float[Array, "4"]) -> Bool[Array, ""]:
     return jnp.all(jnp.isfinite(q_wxyz)) & (jnp.abs(jnp.sum(q_wxyz**2) - 1.0) < 0.1)
 
 
+def _gyro_usable(gyro: Float[Array, "3"], dt: Float[Array, ""]) -> Bool[Array, ""]:
+    """A gyro reading moves the attitude when it and the step dt > 0 are finite."""
+    return jnp.all(jnp.isfinite(gyro)) & jnp.isfinite(dt) & (dt > 0)
+
+
 def _correct(params: AttitudeParams, state: AttitudeState, gyro, gyro_ok, err, dt) -> AttitudeState:
     """The filter's update for an attitude error `err` (base frame, rad): the gyro less the bias estimate
     plus kp err integrated over dt (nothing when the gyro is unusable), the bias driven by -ki err."""
@@ -93,7 +98,7 @@ def step(
     dt: Float[Array, ""],
 ) -> tuple[AttitudeState, Bool[Array, "2"]]:
     """Advance by dt seconds. Returns the new state and flags (gyro used, accelerometer used)."""
-    gyro_ok = jnp.all(jnp.isfinite(gyro)) & jnp.isfinite(dt) & (dt > 0)
+    gyro_ok = _gyro_usable(gyro, dt)
     acc_sq = jnp.where(jnp.all(jnp.isfinite(acc)), acc @ acc, 0.0)
     acc_norm = jnp.sqrt(jnp.where(acc_sq > 0, acc_sq, 1.0))
     acc_ok = (acc_sq > 0) & (jnp.abs(acc_norm - GRAVITY) < params.acc_gate * GRAVITY) & gyro_ok
@@ -114,7 +119,7 @@ def step_toward(
     """Advance by dt seconds, corrected toward the reported attitude q_meas (module docstring; acc_gate
     unused). A non-finite or non-unit report does not correct. Returns the state and (gyro used,
     attitude used)."""
-    gyro_ok = jnp.all(jnp.isfinite(gyro)) & jnp.isfinite(dt) & (dt > 0)
+    gyro_ok = _gyro_usable(gyro, dt)
     meas_ok = report_usable(q_meas_wxyz) & gyro_ok
     q_meas = jnp.where(meas_ok, q_meas_wxyz, state.q_world_base)
     err = (SO3(state.q_world_base).inverse() @ SO3(q_meas / jnp.linalg.norm(q_meas))).log()  # base frame
