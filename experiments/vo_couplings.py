@@ -3,6 +3,7 @@
     python experiments/vo_couplings.py --log sim/fleet.npz [--contacts mixed truth] [--throughput 1 1024]
     python experiments/vo_couplings.py --robot go2 --robot badger --world house --world warehouse
         [--robots 32] [--seconds 60] [--seed 1] [--contacts mixed truth]
+        [--params jaxquad/demo/tuned/{robot}_aggressive.yaml]
 
 The log is a simulated fleet with depth and ground truth (`jaxquad simulate ... --out sim/`), or, with
 --robot and --world, fleets simulated in memory (aggressive gait, depth on; no multi-GB log is written),
@@ -11,7 +12,9 @@ odometry then runs with each coupling (off, guess, guess+restart). Printed as Ma
 mean and max ATE over robots (SE(3)-aligned, evo's definition), the RPE translation RMSE over 2 m / 5 m
 segments (in % of the segment), the segment drift (`drift_pct`, KITTI's t_rel over 2, 5 and 10 m
 segments, pooled over robots as KITTI does; and the worst robot's), the rotation drift (deg/m) and the
-tracking-loss rate; the leg odometry's row at the same stamps for comparison. With --throughput B...:
+tracking-loss rate; the leg odometry's row at the same stamps for comparison. --params: the estimator's
+parameters file (`jaxquad tune` output), `{robot}` replaced by the log's robot; default the paper's
+numbers. With --throughput B...:
 frames/s of B robots' odometry in one jitted vmapped call (the first robot's first --frames frames
 repeated), compile time apart.
 """
@@ -146,6 +149,11 @@ def main() -> int:
         help="batch sizes to time on the first log (default: none)",
     )
     ap.add_argument("--frames", type=int, default=64, help="frames per robot in the throughput runs (default 64)")
+    ap.add_argument(
+        "--params",
+        default=None,
+        help="estimator parameters (.yaml/.json, e.g. tuned), {robot} replaced by the robot (default: the paper's)",
+    )
     args = ap.parse_args()
     if (args.log is None) == (args.robot is None):
         ap.error("give either --log or --robot (with --world)")
@@ -153,6 +161,8 @@ def main() -> int:
         ap.error("--robot needs --world, --robots >= 1 and --seconds > 0")
     from jaxquad.estimate import estimate_log
     from jaxquad.estimate.inputs import R_base_imu
+    from jaxquad.estimate.run import load_params
+    from jaxquad.robots import load
 
     print(
         f"`python {' '.join(sys.argv)}`  \nmachine: {platform.processor() or platform.machine()}, "
@@ -161,8 +171,12 @@ def main() -> int:
     first = True
     for title, log in _logs(args):
         for contacts in args.contacts:
-            robot, _, est = estimate_log(log, contacts)
-            print(f"\n{title}, {contacts} contacts:\n")
+            robot = load(str(np.asarray(log["robot"])))
+            path = None if args.params is None else args.params.replace("{robot}", robot.name)
+            params = load_params(path, len(robot.foot_names), contacts)
+            robot, _, est = estimate_log(log, contacts, params, robot)
+            source = "" if path is None else f" ({path})"
+            print(f"\n{title}, {contacts} contacts{source}:\n")
             print("\n".join(_table(log, est, R_base_imu(robot))), flush=True)
             if args.throughput and first:
                 print()
