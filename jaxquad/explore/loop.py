@@ -173,10 +173,11 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
     def init(params: ExploreLoopParams, inputs: ExploreInputs, qpos0, key) -> ExploreLoopState:
         k_sim, key = jax.random.split(key)
         b, depth = body.start(params.body, inputs.model, inputs.setup, qpos0, k_sim)
-        scan = body.scan(params.body, b.est, depth)
-        slam_state = slam.init(params.slam_spec, params.slam, scan.bearings)
-        # The odometry starts at the true start pose (the operator's), so the map frame is the world's.
-        slam_state, out = slam_step(params, slam_state, b, depth, body.leg_pose(b.est))
+        slam_state = slam.init(params.slam_spec, params.slam, body.scan(params.body, b.est, depth).bearings)
+        # The odometry starts at the true start pose (the operator's), so the map frame is the world's and the
+        # SLAM pose is the odometry's until the first tick's scan makes the first node (a SLAM step here would
+        # compile the whole SLAM a second time, for one scan).
+        pose = body.leg_pose(b.est)
         g = params.slam_spec.grid
         shape = (g.rows, g.cols)
         unknown = jnp.full(shape, 255.0, jnp.float32)  # no map yet: every cell unknown
@@ -184,10 +185,10 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
         return ExploreLoopState(
             body=b,
             slam=slam_state,
-            pose=out.pose,
+            pose=pose,
             grid=CostGrid(unknown, origin, jnp.asarray(g.resolution, jnp.float32)),
             explore=explore.init(shape),
-            nav=nav.init(params.nav, out.pose),
+            nav=nav.init(params.nav, pose),
             cmd=jnp.zeros(3),
             no_goal_for=jnp.zeros(()),
             lost_for=jnp.zeros(()),
