@@ -78,7 +78,7 @@ def test_chain_covariance_matches_monte_carlo():
 
 
 @functools.cache
-def _corrupted_run(loop_max_chi2: float):
+def _corrupted_inputs():
     """The loop of test_slam_online with the first closing node's scan cast 1.3 m and 15 deg off."""
     odom = _drifted(LOOP, 0.05, 0.04)
     lo = _drifted(LOOP, 0.01, 0.005)
@@ -88,6 +88,11 @@ def _corrupted_run(loop_max_chi2: float):
     k = int(np.flatnonzero(out.loop_closed[0])[0])  # the scan whose node closes the loop first
     x["ranges"] = x["ranges"].copy()
     x["ranges"][0, k] = cast(WORLD, LOOP[k] + [0.9, 0.9, np.deg2rad(15.0)], BEARINGS, 6.0)
+    return k, x
+
+
+def _corrupted_run(loop_max_chi2: float):
+    k, x = _corrupted_inputs()
     params = eqx.tree_at(lambda p: p.loop_max_chi2, SlamParams(), jnp.asarray(loop_max_chi2, jnp.float32))
     state, out, online_state = run_fleet(_spec("preintegrated"), params, x)
     return k, x, state, out, online_state
