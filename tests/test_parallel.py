@@ -23,9 +23,12 @@ WORKER = Path(__file__).with_name("_parallel_worker.py")
 _COUNTS = ("tp", "fp", "fn", "force_sq", "samples")
 
 
-def _env(**extra) -> dict:
+def _env(devices: int = 1, **extra) -> dict:
+    """This process's environment (its XLA flags too, see conftest) with `devices` CPU devices."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAXQUAD_")}
-    return env | {"JAX_PLATFORMS": "cpu", "XLA_FLAGS": "--xla_force_host_platform_device_count=1"} | extra
+    flags = [f for f in env.get("XLA_FLAGS", "").split() if not f.startswith("--xla_force_host_platform_device_count")]
+    flags.append(f"--xla_force_host_platform_device_count={devices}")
+    return env | {"JAX_PLATFORMS": "cpu", "XLA_FLAGS": " ".join(flags)} | extra
 
 
 def _check(proc: subprocess.CompletedProcess | subprocess.Popen, err: str) -> None:
@@ -33,7 +36,7 @@ def _check(proc: subprocess.CompletedProcess | subprocess.Popen, err: str) -> No
 
 
 def _two_devices(*args, timeout: float) -> None:
-    env = _env(XLA_FLAGS="--xla_force_host_platform_device_count=2")
+    env = _env(devices=2)
     proc = subprocess.run(
         [sys.executable, str(WORKER), *args], env=env, capture_output=True, text=True, timeout=timeout
     )
