@@ -384,3 +384,27 @@ def test_smoothing_recovers_motion_from_noisy_depth():
         T = np.asarray(run(dataclasses.replace(free, smooth_radius=radius)), np.float64)
         err[radius] = np.linalg.norm(T[:3, 3] - T_delta[:3, 3])
     assert err[2] < 5e-3 and err[2] < 0.5 * err[0], err
+
+
+def test_gpu_and_cpu_forms_agree():
+    """The per-platform forms (`jax.lax.platform_dependent`): neighbours by slices of padded images
+    against `jnp.roll` (exact), normal equations by 27 sums against matrix products (float32 rounding);
+    the CPU runs the GPU's forms here directly."""
+    rng = np.random.default_rng(3)
+    P = tuple(jnp.asarray(rng.normal(size=(12, 17)), jnp.float32) for _ in range(3))
+    valid = jnp.asarray(rng.random((12, 17)) < 0.8)
+    gate = jnp.asarray(rng.uniform(0.5, 2.0, (12, 17)), jnp.float32)
+    d_roll, ok_roll = jax.jit(icp._neighbours_by_roll)(P, valid, gate)
+    d_slice, ok_slice = jax.jit(icp._neighbours_by_slices)(P, valid, gate)
+    np.testing.assert_array_equal(np.asarray(ok_slice), np.asarray(ok_roll))
+    assert 0 < int(ok_roll.sum()) < ok_roll.size
+    inner = (slice(1, -1), slice(1, -1))  # the border wraps around in one form and meets zeros in the other
+    for name in d_roll:
+        for a, b in zip(d_roll[name], d_slice[name]):
+            np.testing.assert_array_equal(np.asarray(a)[inner], np.asarray(b)[inner])
+    J = jnp.asarray(rng.normal(size=(6, 500)), jnp.float32)
+    wgt, r = (jnp.asarray(x, jnp.float32) for x in (rng.random(500), rng.normal(size=500)))
+    H_sum, b_sum = jax.jit(icp._equations_by_sums)(J, wgt, r)
+    Jd, wd, rd = (np.asarray(x, np.float64) for x in (J, wgt, r))
+    np.testing.assert_allclose(np.asarray(H_sum), (Jd * wd) @ Jd.T, rtol=1e-4, atol=1e-3)
+    np.testing.assert_allclose(np.asarray(b_sum), (Jd * wd) @ rd, rtol=1e-4, atol=1e-3)
