@@ -126,6 +126,18 @@ def _logs(args):
             )
 
 
+def _observer_params(ap: argparse.ArgumentParser, template: str | None, robot, contacts: str):
+    """(path, PipelineParams) for `robot` from the --params template ({robot} replaced), or the paper's
+    numbers; a missing or malformed file is a one-line usage error."""
+    from jaxquad.estimate.run import load_params
+
+    path = None if template is None else template.replace("{robot}", robot.name)
+    try:
+        return path, load_params(path, len(robot.foot_names), contacts)
+    except (OSError, ValueError) as e:
+        ap.error(str(e))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--log", default=None, help="fleet log with depth and gt_pose (.npz); or simulate with --robot")
@@ -161,8 +173,11 @@ def main() -> int:
         ap.error("--robot needs --world, --robots >= 1 and --seconds > 0")
     from jaxquad.estimate import estimate_log
     from jaxquad.estimate.inputs import R_base_imu
-    from jaxquad.estimate.run import load_params
     from jaxquad.robots import load
+
+    for name in args.robot or []:  # every params file read before any simulation
+        for contacts in args.contacts:
+            _observer_params(ap, args.params, load(name), contacts)
 
     print(
         f"`python {' '.join(sys.argv)}`  \nmachine: {platform.processor() or platform.machine()}, "
@@ -170,10 +185,9 @@ def main() -> int:
     )
     first = True
     for title, log in _logs(args):
+        robot = load(str(np.asarray(log["robot"])))
         for contacts in args.contacts:
-            robot = load(str(np.asarray(log["robot"])))
-            path = None if args.params is None else args.params.replace("{robot}", robot.name)
-            params = load_params(path, len(robot.foot_names), contacts)
+            path, params = _observer_params(ap, args.params, robot, contacts)
             robot, _, est = estimate_log(log, contacts, params, robot)
             source = "" if path is None else f" ({path})"
             print(f"\n{title}, {contacts} contacts{source}:\n")
