@@ -23,14 +23,16 @@ level, so one robot's alignment jits once and vmaps over a fleet.
 
 from __future__ import annotations
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from jaxquad.kernels import icp_pass
 from jaxquad.kernels._small_linalg import spd_solve
 from jaxquad.kernels.lie import SO3, se3_exp, skew
-from jaxquad.kernels.robust_twist import robust_weight
 
 # Cosine of the largest angle between a pixel's two one-sided normals (about 18 deg).
 NORMAL_AGREEMENT_COS = 0.95
@@ -70,12 +72,28 @@ class IcpParams(eqx.Module):
 
 
 class DepthLevel(eqx.Module):
-    """One pyramid level of a depth image: points and normals in the camera frame."""
+    """One pyramid level of a depth image, one row per pixel: the point (camera frame, m), the unit normal
+    facing the camera, point valid (finite depth > 0) and normal valid (its neighbours valid and on the
+    same surface) as 0 / 1. One row, so that the projective association fetches a reference pixel's
+    point, normal and flag in one gather."""
 
-    points: Float[Array, "h w 3"]  # m
-    normals: Float[Array, "h w 3"]  # unit, facing the camera
-    valid: Bool[Array, "h w"]  # point valid (finite depth > 0)
-    normal_ok: Bool[Array, "h w"]  # normal valid (its neighbours valid and on the same surface)
+    rows: Float[Array, "h w 8"]
+
+    @property
+    def points(self) -> Float[Array, "h w 3"]:
+        return self.rows[..., 0:3]
+
+    @property
+    def normals(self) -> Float[Array, "h w 3"]:
+        return self.rows[..., 3:6]
+
+    @property
+    def valid(self) -> Bool[Array, "h w"]:
+        return self.rows[..., 6] > 0.0
+
+    @property
+    def normal_ok(self) -> Bool[Array, "h w"]:
+        return self.rows[..., 7] > 0.0
 
 
 class NormalEquations(eqx.Module):
@@ -93,8 +111,9 @@ def level_intrinsics(K: Float[Array, "3 3"], level: int) -> Float[Array, "3 3"]:
     return K * jnp.array([[s, 1.0, s], [1.0, s, s], [1.0, 1.0, 1.0]], K.dtype)
 
 
-def backproject(depth: Float[Array, "h w"], K: Float[Array, "3 3"]) -> tuple[Float[Array, "h w 3"], Bool[Array, "h w"]]:
-    """Camera-frame points of a z-depth image (0, negative or non-finite = invalid; points there are 0)."""
+def backproject(depth: Float[Array, "h w"], K: Float[Array, "3 3"]) -> tuple[Float[Array, "3 h w"], Bool[Array, "h w"]]:
+    """Camera-frame points (x, y, z planes) of a z-depth image (0, negative or non-finite = invalid; points
+    there are 0)."""
     h, w = depth.shape
     valid = jnp.isfinite(depth) & (depth > 0.0)
     z = jnp.where(valid, depth, 0.0)
@@ -102,7 +121,7 @@ def backproject(depth: Float[Array, "h w"], K: Float[Array, "3 3"]) -> tuple[Flo
     v = jnp.arange(h, dtype=depth.dtype)[:, None]
     x = (u - K[0, 2]) / K[0, 0] * z
     y = (v - K[1, 2]) / K[1, 1] * z
-    return jnp.stack([x, y, z], -1), valid
+    return jnp.stack([x, y, z]), valid
 
 
 _NEIGHBOURS = (("right", 0, 1), ("left", 0, -1), ("down", 1, 0), ("up", -1, 0))  # name, row and column offset
@@ -135,15 +154,15 @@ def _neighbours_by_slices(P, valid, gate):
 
 
 def image_normals(
-    points: Float[Array, "h w 3"], valid: Bool[Array, "h w"], max_jump: Float[Array, ""]
-) -> tuple[Float[Array, "h w 3"], Bool[Array, "h w"]]:
-    """Normals from the four neighbours, oriented towards the camera.
+    points: Float[Array, "3 h w"], valid: Bool[Array, "h w"], max_jump: Float[Array, ""]
+) -> tuple[Float[Array, "3 h w"], Bool[Array, "h w"]]:
+    """Normals (x, y, z planes) from the four neighbours, oriented towards the camera.
 
     Two one-sided normals, cross(right - p, down - p) and cross(left - p, up - p), must agree within
     `NORMAL_AGREEMENT_COS` (a pixel on a crease such as a wall-floor corner has no normal), and every
     neighbour must be valid and within `max_jump` * z in depth (not across a depth edge); the
     border has no normal. `depth_frame` passes IcpParams.max_normal_jump / f_x as `max_jump`."""
-    P = tuple(jnp.moveaxis(points, -1, 0))  # component planes (x, y, z), each (h, w)
+    P = tuple(points)
     z = P[2]
     gate = max_jump * jnp.maximum(z, 1e-3)
     diff, ok = jax.lax.platform_dependent(P, valid, gate, cpu=_neighbours_by_roll, default=_neighbours_by_slices)
@@ -162,7 +181,7 @@ def image_normals(
     n, ok3 = unit(tuple(a + b for a, b in zip(n1, n2)))
     ok &= ok1 & ok2 & ok3 & (dot(n1, n2) > NORMAL_AGREEMENT_COS)
     sign = jnp.where(dot(n, P) > 0.0, -1.0, 1.0)  # face the camera
-    return jnp.stack([jnp.where(ok, sign * c, 0.0) for c in n], -1), ok
+    return jnp.stack([jnp.where(ok, sign * c, 0.0) for c in n]), ok
 
 
 def smooth_depth(depth: Float[Array, "h w"], radius: int, max_jump: Float[Array, ""]) -> Float[Array, "h w"]:
@@ -179,15 +198,18 @@ def smooth_depth(depth: Float[Array, "h w"], radius: int, max_jump: Float[Array,
     valid = jnp.isfinite(depth) & (depth > 0.0)
     z = jnp.where(valid, depth, 0.0)
     zp = jnp.pad(z, radius)
+    rho_p = jnp.pad(1.0 / jnp.where(valid, depth, 1.0), radius)  # one division per pixel, not per window tap
+    gate = max_jump * z
     zero = jnp.zeros_like(z)
     # sums of 1, du, dv, du^2, du dv, dv^2, rho, rho du, rho dv over the window's members
     s0, su, sv, suu, suv, svv, sr, sru, srv = (zero,) * 9
     for dv in range(-radius, radius + 1):
         for du in range(-radius, radius + 1):
-            zn = zp[radius + dv : radius + dv + h, radius + du : radius + du + w]
-            take = (zn > 0.0) & (jnp.abs(zn - z) <= max_jump * z * max(abs(du), abs(dv)))
+            at = (slice(radius + dv, radius + dv + h), slice(radius + du, radius + du + w))
+            zn = zp[at]
+            take = (zn > 0.0) & (jnp.abs(zn - z) <= gate * max(abs(du), abs(dv)))
             m = take.astype(z.dtype)
-            r = m / jnp.where(take, zn, 1.0)
+            r = jnp.where(take, rho_p[at], 0.0)
             s0, su, sv = s0 + m, su + du * m, sv + dv * m
             suu, suv, svv = suu + du * du * m, suv + du * dv * m, svv + dv * dv * m
             sr, sru, srv = sr + r, sru + du * r, srv + dv * r
@@ -217,23 +239,11 @@ def depth_frame(
         s = 2**level
         pts, valid = backproject(depth[::s, ::s], level_intrinsics(K, level))
         n, n_ok = image_normals(pts, valid, max_jump / level_intrinsics(K, level)[0, 0])
-        out.append(DepthLevel(points=pts, normals=n, valid=valid, normal_ok=n_ok))
+        planes = (*pts, *n, valid.astype(pts.dtype), n_ok.astype(pts.dtype))
+        # Materialized as planes first: fused into the interleaving, XLA on GPUs recomputes a pixel's
+        # normal for each of its row's eight numbers.
+        out.append(DepthLevel(rows=jnp.stack(jax.lax.optimization_barrier(planes), -1)))
     return tuple(out)
-
-
-def _equations_by_product(J: Float[Array, "6 n"], wgt: Float[Array, " n"], r: Float[Array, " n"]):
-    """H = J W J^T and b = J W r as matrix products (on CPUs, twice as fast as `_equations_by_sums`)."""
-    Jw = J * wgt
-    return Jw @ J.T, Jw @ r
-
-
-def _equations_by_sums(J: Float[Array, "6 n"], wgt: Float[Array, " n"], r: Float[Array, " n"]):
-    """The same as the 21 distinct sums of H and the 6 of b: on GPUs XLA fuses these reductions with the
-    association into one pass (on an H200, 1.6x faster than the batched matrix product)."""
-    Jw = J * wgt
-    upper = {(i, k): jnp.sum(Jw[i] * J[k]) for i in range(6) for k in range(i, 6)}
-    H = jnp.stack([jnp.stack([upper[min(i, k), max(i, k)] for k in range(6)]) for i in range(6)])
-    return H, jnp.stack([jnp.sum(Jw[i] * r) for i in range(6)])
 
 
 def point_to_plane(
@@ -244,33 +254,26 @@ def point_to_plane(
     params: IcpParams,
 ) -> NormalEquations:
     """Projective association of the current points into the reference image and the weighted
-    point-to-plane normal equations at T_ref_cur."""
-    h, w = ref.valid.shape
-    # Component planes, not (N, 3) rows: XLA on CPUs vectorizes these better.
-    x, y, z = (c.reshape(-1) for c in jnp.moveaxis(cur.points, -1, 0))
-    R, t = T_ref_cur[:3, :3], T_ref_cur[:3, 3]
-    px, py, pz = (R[i, 0] * x + R[i, 1] * y + R[i, 2] * z + t[i] for i in range(3))
-    in_front = cur.valid.reshape(-1) & (pz > 1e-3)
-    z_safe = jnp.where(in_front, pz, 1.0)
-    u = jnp.round(K[0, 0] * px / z_safe + K[0, 2])
-    v = jnp.round(K[1, 1] * py / z_safe + K[1, 2])
-    inside = in_front & (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
-    idx = jnp.where(inside, v.astype(jnp.int32) * w + u.astype(jnp.int32), 0)
-    q = ref.points.reshape(-1, 3)[idx]
-    n = ref.normals.reshape(-1, 3)[idx]
-    dx, dy, dz = px - q[:, 0], py - q[:, 1], pz - q[:, 2]
-    nx, ny, nz = n[:, 0], n[:, 1], n[:, 2]
-    r = nx * dx + ny * dy + nz * dz
-    inlier = inside & ref.normal_ok.reshape(-1)[idx] & (dx * dx + dy * dy + dz * dz < params.max_dist**2)
-    wgt = jnp.where(inlier, robust_weight(jnp.abs(r), params.huber_k, "huber"), 0.0)
-    J = jnp.stack([nx, ny, nz, py * nz - pz * ny, pz * nx - px * nz, px * ny - py * nx])  # (6, N): [n, p x n]
-    H, b = jax.lax.platform_dependent(J, wgt, r, cpu=_equations_by_product, default=_equations_by_sums)
-    return NormalEquations(
-        H=H,
-        b=b,
-        n_inliers=jnp.sum(inlier.astype(r.dtype)),
-        sq_residual=jnp.sum(jnp.where(inlier, r * r, 0.0)),
+    point-to-plane normal equations at T_ref_cur (`icp_pass`: a matrix product on CPUs, one Pallas kernel
+    on CUDA GPUs)."""
+    h, w = ref.rows.shape[:2]
+    scal = jnp.concatenate(
+        [
+            T_ref_cur[:3, :3].reshape(-1),
+            T_ref_cur[:3, 3],
+            jnp.stack([K[0, 0], K[1, 1], K[0, 2], K[1, 2], params.max_dist**2, params.huber_k]).astype(T_ref_cur.dtype),
+        ]
     )
+    cur_rows, ref_rows = cur.rows.reshape(-1, 8), ref.rows.reshape(-1, 8)
+    sums = jax.lax.platform_dependent(
+        scal,
+        cur_rows,
+        ref_rows,
+        cuda=functools.partial(icp_pass.sums_by_kernel, h=h, w=w),
+        default=functools.partial(icp_pass.sums_by_product, h=h, w=w),
+    )
+    H = jnp.zeros((6, 6), sums.dtype).at[tuple(jnp.asarray(ix) for ix in zip(*icp_pass.UPPER))].set(sums[:21])
+    return NormalEquations(H=H + jnp.triu(H, 1).T, b=sums[21:27], n_inliers=sums[27], sq_residual=sums[28])
 
 
 def prior_terms(
@@ -340,14 +343,21 @@ def align(
     up: Float[Array, "2 3"] | None = None,
 ) -> Alignment:
     """Coarse-to-fine alignment; `iterations[l]` Gauss-Newton steps on level l, coarsest first.
-    The statistics are re-linearized at the final pose on the finest level. `up`: see `prior_terms`."""
-    T = T_init
+
+    The statistics are those of the finest level's last linearization, at the pose before the last
+    update (with no step there, at the final pose): by then Gauss-Newton moves the pose by far less
+    than the depth noise, and a pass of its own over the finest level would cost a third of the
+    alignment. `up`: see `prior_terms`."""
+    T = T_lin = T_init
+    ne = None
     for level in reversed(range(len(iterations))):
         K_l = level_intrinsics(K, level)
         for _ in range(iterations[level]):
-            T, _ = gauss_newton_step(T, T_guess, cur[level], ref[level], K_l, params, up)
-    ne = point_to_plane(T, cur[0], ref[0], K, params)
-    H_p, _ = prior_terms(T, T_guess, params, up)
+            T_lin = T
+            T, ne = gauss_newton_step(T, T_guess, cur[level], ref[level], K_l, params, up)
+    if iterations[0] == 0:
+        T_lin, ne = T, point_to_plane(T, cur[0], ref[0], K, params)
+    H_p, _ = prior_terms(T_lin, T_guess, params, up)
     n = jnp.maximum(ne.n_inliers, 1.0)
     return Alignment(
         T_ref_cur=T,

@@ -13,7 +13,7 @@ import pytest
 from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
-from jaxquad.kernels import icp
+from jaxquad.kernels import icp, icp_pass
 from jaxquad.kernels.raycast import Boxes, cast_depth, pinhole_rays
 
 H, W, LEVELS, ITERS = 30, 40, 2, (4, 6)
@@ -388,8 +388,9 @@ def test_smoothing_recovers_motion_from_noisy_depth():
 
 def test_gpu_and_cpu_forms_agree():
     """The per-platform forms (`jax.lax.platform_dependent`): neighbours by slices of padded images
-    against `jnp.roll` (exact), normal equations by 27 sums against matrix products (float32 rounding);
-    the CPU runs the GPU's forms here directly."""
+    against `jnp.roll` (exact); the point-to-plane pass's GPU kernel, run in Pallas's interpreter,
+    against the CPU's matrix products (which `test_gauss_newton_step_equals_numpy_loop` checks), batched
+    over poses, and its derivatives."""
     rng = np.random.default_rng(3)
     P = tuple(jnp.asarray(rng.normal(size=(12, 17)), jnp.float32) for _ in range(3))
     valid = jnp.asarray(rng.random((12, 17)) < 0.8)
@@ -402,9 +403,28 @@ def test_gpu_and_cpu_forms_agree():
     for name in d_roll:
         for a, b in zip(d_roll[name], d_slice[name]):
             np.testing.assert_array_equal(np.asarray(a)[inner], np.asarray(b)[inner])
-    J = jnp.asarray(rng.normal(size=(6, 500)), jnp.float32)
-    wgt, r = (jnp.asarray(x, jnp.float32) for x in (rng.random(500), rng.normal(size=500)))
-    H_sum, b_sum = jax.jit(icp._equations_by_sums)(J, wgt, r)
-    Jd, wd, rd = (np.asarray(x, np.float64) for x in (J, wgt, r))
-    np.testing.assert_allclose(np.asarray(H_sum), (Jd * wd) @ Jd.T, rtol=1e-4, atol=1e-3)
-    np.testing.assert_allclose(np.asarray(b_sum), (Jd * wd) @ rd, rtol=1e-4, atol=1e-3)
+
+    # 1,517 points: one full block of the kernel and a partial one.
+    h, w = 37, 41
+    uu, vv = np.meshgrid(np.arange(w), np.arange(h))
+    ref_depth = 2.0 + 0.3 * np.sin(0.2 * uu) + 0.2 * np.cos(0.25 * vv)
+    cur_depth = ref_depth + 0.01 * rng.standard_normal((h, w))
+    cur_depth[rng.random((h, w)) < 0.1] = 0.0
+    Kl = _f32([[30.0, 0, 19.3], [0, 31.5, 17.6], [0, 0, 1]])
+    ref, cur = (icp.depth_frame(_f32(d), Kl, 1, RAW)[0].rows.reshape(-1, 8) for d in (ref_depth, cur_depth))
+
+    def scal(T):
+        numbers = [Kl[0, 0], Kl[1, 1], Kl[0, 2], Kl[1, 2], RAW.max_dist**2, RAW.huber_k]
+        return jnp.concatenate([T[:3, :3].reshape(-1), T[:3, 3], jnp.stack(numbers)])
+
+    poses = jnp.stack([_f32(_pose(rng.normal(0, 0.02, 3), rng.normal(0, 0.02, 3))) for _ in range(2)])
+    by_kernel = jax.vmap(lambda s: icp_pass.sums_by_kernel(s, cur, ref, h, w, interpret=True))
+    by_product = jax.vmap(lambda s: icp_pass.sums_by_product(s, cur, ref, h, w))
+    s = jax.vmap(scal)(poses)
+    want = np.asarray(by_product(s))
+    assert np.all(want[:, 27] > 500)  # inliers
+    np.testing.assert_allclose(np.asarray(by_kernel(s)), want, rtol=1e-4, atol=1e-4 * np.abs(want).max())
+    tangent = jnp.asarray(rng.normal(size=s.shape), jnp.float32)
+    _, d_kernel = jax.jvp(by_kernel, (s,), (tangent,))
+    _, d_product = jax.jvp(by_product, (s,), (tangent,))
+    np.testing.assert_array_equal(np.asarray(d_kernel), np.asarray(d_product))
