@@ -99,12 +99,10 @@ def _throughput(log, est, R_base_imu, batches, frames: int) -> list[str]:
     return rows
 
 
-def _logs(args):
-    """(title, log) pairs: the --log file, or one in-memory fleet per --robot x --world."""
-    if args.log is not None:
-        from jaxquad.io import load_log
-
-        yield args.log, load_log(args.log)
+def _logs(args, log):
+    """(title, log) pairs: the --log file's (read already), or one in-memory fleet per --robot x --world."""
+    if log is not None:
+        yield args.log, log
         return
     from jaxquad.sim.fleet import FleetConfig
     from jaxquad.sim.rollout import rollout
@@ -175,6 +173,14 @@ def main() -> int:
     from jaxquad.estimate.inputs import R_base_imu
     from jaxquad.robots import load
 
+    given = None
+    if args.log is not None:  # a missing or malformed log is a usage error, before any work
+        from jaxquad.io import load_log
+
+        try:
+            given = load_log(args.log)
+        except (OSError, ValueError) as e:
+            ap.error(str(e))
     for name in args.robot or []:  # every params file read before any simulation
         for contacts in args.contacts:
             _observer_params(ap, args.params, load(name), contacts)
@@ -184,7 +190,7 @@ def main() -> int:
         f"jax {jax.__version__} on {jax.devices()[0].device_kind}\n"
     )
     first = True
-    for title, log in _logs(args):
+    for title, log in _logs(args, given):
         robot = load(str(np.asarray(log["robot"])))
         for contacts in args.contacts:
             path, params = _observer_params(ap, args.params, robot, contacts)
