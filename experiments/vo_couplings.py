@@ -181,9 +181,10 @@ def main() -> int:
             given = load_log(args.log)
         except (OSError, ValueError) as e:
             ap.error(str(e))
-    for name in args.robot or []:  # every params file read before any simulation
-        for contacts in args.contacts:
-            _observer_params(ap, args.params, load(name), contacts)
+    # every params file read once, before any simulation
+    names = args.robot or [str(np.asarray(given["robot"]))]
+    robots = [load(n) for n in names]
+    observer = {(r.name, c): _observer_params(ap, args.params, r, c) for r in robots for c in args.contacts}
 
     print(
         f"`python {' '.join(sys.argv)}`  \nmachine: {platform.processor() or platform.machine()}, "
@@ -193,7 +194,7 @@ def main() -> int:
     for title, log in _logs(args, given):
         robot = load(str(np.asarray(log["robot"])))
         for contacts in args.contacts:
-            path, params = _observer_params(ap, args.params, robot, contacts)
+            path, params = observer[robot.name, contacts]
             robot, _, est = estimate_log(log, contacts, params, robot)
             source = "" if path is None else f" ({path})"
             print(f"\n{title}, {contacts} contacts{source}:\n")

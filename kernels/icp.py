@@ -257,23 +257,15 @@ def point_to_plane(
     point-to-plane normal equations at T_ref_cur (`icp_pass`: a matrix product on CPUs, one Pallas kernel
     on CUDA GPUs)."""
     h, w = ref.rows.shape[:2]
-    scal = jnp.concatenate(
-        [
-            T_ref_cur[:3, :3].reshape(-1),
-            T_ref_cur[:3, 3],
-            jnp.stack([K[0, 0], K[1, 1], K[0, 2], K[1, 2], params.max_dist**2, params.huber_k]).astype(T_ref_cur.dtype),
-        ]
-    )
-    cur_rows, ref_rows = cur.rows.reshape(-1, 8), ref.rows.reshape(-1, 8)
     sums = jax.lax.platform_dependent(
-        scal,
-        cur_rows,
-        ref_rows,
+        icp_pass.pass_numbers(T_ref_cur, K, params.max_dist, params.huber_k),
+        cur.rows.reshape(-1, 8),
+        ref.rows.reshape(-1, 8),
         cuda=functools.partial(icp_pass.sums_by_kernel, h=h, w=w),
         default=functools.partial(icp_pass.sums_by_product, h=h, w=w),
     )
-    H = jnp.zeros((6, 6), sums.dtype).at[tuple(jnp.asarray(ix) for ix in zip(*icp_pass.UPPER))].set(sums[:21])
-    return NormalEquations(H=H + jnp.triu(H, 1).T, b=sums[21:27], n_inliers=sums[27], sq_residual=sums[28])
+    H, b, n_inliers, sq_residual = icp_pass.normal_equations(sums)
+    return NormalEquations(H=H, b=b, n_inliers=n_inliers, sq_residual=sq_residual)
 
 
 def prior_terms(

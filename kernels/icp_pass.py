@@ -28,7 +28,26 @@ from jaxquad.kernels.robust_twist import robust_weight
 BLOCK = 1024  # current points per GPU program (a power of two, as Triton's tensors need)
 N_SUMS = 29
 _LANES = 32  # a program's sums, padded to a power of two
-UPPER = tuple((i, k) for i in range(6) for k in range(i, 6))  # H's upper triangle, the sums' order
+_UPPER = tuple((i, k) for i in range(6) for k in range(i, 6))  # H's upper triangle, the sums' order
+
+
+def _upper_index() -> tuple[Array, Array]:
+    """(rows, cols) of `_UPPER`, in the integer width of the caller's precision (x64 or not)."""
+    return tuple(jnp.asarray(ix) for ix in zip(*_UPPER))
+
+
+def pass_numbers(
+    T_ref_cur: Float[Array, "4 4"], K: Float[Array, "3 3"], max_dist: Float[Array, ""], huber_k: Float[Array, ""]
+) -> Float[Array, "18"]:
+    """`scal` of a pass: R (row major), t, fx, fy, cx, cy, max_dist^2, huber_k."""
+    numbers = jnp.stack([K[0, 0], K[1, 1], K[0, 2], K[1, 2], max_dist**2, huber_k]).astype(T_ref_cur.dtype)
+    return jnp.concatenate([T_ref_cur[:3, :3].reshape(-1), T_ref_cur[:3, 3], numbers])
+
+
+def normal_equations(sums: Float[Array, "29"]):
+    """(H (6, 6), b (6,), inlier count, squared residual) of a pass's sums."""
+    H = jnp.zeros((6, 6), sums.dtype).at[_upper_index()].set(sums[:21])
+    return H + jnp.triu(H, 1).T, sums[21:27], sums[27], sums[28]
 
 
 def associate(x, y, z, ok, ref_row, scal, h: int, w: int):
@@ -53,14 +72,14 @@ def associate(x, y, z, ok, ref_row, scal, h: int, w: int):
     return J, wgt, r, inlier
 
 
+def _inlier_terms(r, inlier):
+    """Per point: inlier (1 / 0) and its squared residual, the last two sums."""
+    return inlier.astype(r.dtype), jnp.where(inlier, r * r, 0.0)
+
+
 def _terms(J, wgt, r, inlier):
     Jw = tuple(wgt * c for c in J)
-    return (
-        *(Jw[i] * J[k] for i, k in UPPER),
-        *(c * r for c in Jw),
-        inlier.astype(r.dtype),
-        jnp.where(inlier, r * r, 0.0),
-    )
+    return (*(Jw[i] * J[k] for i, k in _UPPER), *(c * r for c in Jw), *_inlier_terms(r, inlier))
 
 
 def _kernel(scal_ref, cur_ref, ref_ref, out_ref, *, n: int, h: int, w: int):
@@ -100,10 +119,8 @@ def sums_by_product(
     J = jnp.stack(J)
     Jw = J * wgt
     H = Jw @ J.T
-    upper = H[tuple(jnp.asarray(ix) for ix in zip(*UPPER))]
-    return jnp.concatenate(
-        [upper, Jw @ r, jnp.stack([jnp.sum(inlier.astype(r.dtype)), jnp.sum(jnp.where(inlier, r * r, 0.0))])]
-    )
+    counts = jnp.stack([jnp.sum(t) for t in _inlier_terms(r, inlier)])
+    return jnp.concatenate([H[_upper_index()], Jw @ r, counts])
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(3, 4, 5))

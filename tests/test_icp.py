@@ -413,14 +413,10 @@ def test_gpu_and_cpu_forms_agree():
     Kl = _f32([[30.0, 0, 19.3], [0, 31.5, 17.6], [0, 0, 1]])
     ref, cur = (icp.depth_frame(_f32(d), Kl, 1, RAW)[0].rows.reshape(-1, 8) for d in (ref_depth, cur_depth))
 
-    def scal(T):
-        numbers = [Kl[0, 0], Kl[1, 1], Kl[0, 2], Kl[1, 2], RAW.max_dist**2, RAW.huber_k]
-        return jnp.concatenate([T[:3, :3].reshape(-1), T[:3, 3], jnp.stack(numbers)])
-
     poses = jnp.stack([_f32(_pose(rng.normal(0, 0.02, 3), rng.normal(0, 0.02, 3))) for _ in range(2)])
     by_kernel = jax.vmap(lambda s: icp_pass.sums_by_kernel(s, cur, ref, h, w, interpret=True))
     by_product = jax.vmap(lambda s: icp_pass.sums_by_product(s, cur, ref, h, w))
-    s = jax.vmap(scal)(poses)
+    s = jax.vmap(lambda T: icp_pass.pass_numbers(T, Kl, RAW.max_dist, RAW.huber_k))(poses)
     want = np.asarray(by_product(s))
     assert np.all(want[:, 27] > 500)  # inliers
     np.testing.assert_allclose(np.asarray(by_kernel(s)), want, rtol=1e-4, atol=1e-4 * np.abs(want).max())
