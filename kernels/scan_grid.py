@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, UInt8
 
+from jaxquad.kernels.control_flow import run_if
 from jaxquad.kernels.lie import SE2
 
 # Grid value of a cell that holds a reference point (Karto's "occupied" value).
@@ -48,8 +49,8 @@ class MatchSpec(eqx.Module):
     angle_step_deg: float = eqx.field(static=True, default=2.0)  # exact (stage 1) rotation step, deg
     fine_angle_step_deg: float = eqx.field(static=True, default=0.2)  # refinement step within +-angle_step
     refine_cells: int = eqx.field(static=True, default=1)  # refinement translation +- cells
-    block: int = eqx.field(static=True, default=16)  # coarse-level block side, cells
-    candidates: int = eqx.field(static=True, default=4)  # coarse blocks expanded per round
+    block: int = eqx.field(static=True, default=8)  # coarse-level block side, cells
+    candidates: int = eqx.field(static=True, default=8)  # coarse blocks expanded per round
     max_rounds: int | None = eqx.field(static=True, default=None)  # cap on rounds (None: exact, no cap)
     smear_half_cells: int = eqx.field(static=True, default=6)  # smear kernel reach, cells (2 sigma)
     cov_points: int = eqx.field(static=True, default=10)  # covariance lattice +- this many points per axis
@@ -73,8 +74,10 @@ class MatchSpec(eqx.Module):
 
     @property
     def margin(self) -> int:
-        """Zero padding, cells: the covariance lattice reaches 2 window + refine cells from the centre."""
-        return 2 * self.window_cells + max(self.block, self.refine_cells) + 1
+        """Zero padding, cells: the covariance lattice reaches 2 window + refine cells from the centre,
+        and the coarse level's sliding max needs block - 1 zero cells beyond the smear's reach."""
+        lattice = 2 * self.window_cells + max(self.block, self.refine_cells) + 1
+        return max(lattice, self.smear_half_cells + self.block - 1)
 
     @property
     def reach(self) -> float:
@@ -155,30 +158,40 @@ def _kernel(spec: MatchSpec, params: MatchParams) -> Array:
 
 
 def _forward_max(x: Array, b: int) -> Array:
-    """y[i, j] = max of x over the b x b cells starting at (i, j), zero beyond the end: per axis one
-    fused max of b shifted slices (on CPUs XLA runs this faster than log2(b) materialized passes)."""
-    for axis in (0, 1):
-        n = x.shape[axis]
-        padded = jnp.pad(x, [(0, b - 1) if a == axis else (0, 0) for a in (0, 1)])
-        y = jax.lax.slice_in_dim(padded, 0, n, axis=axis)
-        for k in range(1, b):
-            y = jnp.maximum(y, jax.lax.slice_in_dim(padded, k, k + n, axis=axis))
-        x = y
-    return x
+    """y[i, j] = max of x over the b x b cells starting at (i, j), zero beyond the end.
+
+    Needs the last b - 1 columns of x to be zero (the grid's margin): then a shift along a row of
+    the flattened grid equals the shift within the row, and both axes are passes over contiguous
+    memory, one fused max of b shifted slices each (on CPUs a shift within rows, or a transpose,
+    costs about ten times as much).
+    """
+    n = x.shape[0] * x.shape[1]
+    flat = jnp.pad(x.reshape(-1), (0, b - 1))
+    y = flat[:n]
+    for k in range(1, b):
+        y = jnp.maximum(y, flat[k : k + n])
+    rows = jnp.pad(y.reshape(x.shape), [(0, b - 1), (0, 0)])
+    z = rows[: x.shape[0]]
+    for k in range(1, b):
+        z = jnp.maximum(z, rows[k : k + x.shape[0]])
+    return z
 
 
 def _splat(spec: MatchSpec, rc: Array, inside: Array, kernel: Array) -> Array:
-    """Padded grid of the max over points of `kernel` centred on each point's cell."""
+    """Padded grid of the max over points of `kernel` centred on each point's cell.
+
+    One scatter of (2h+1)^2 windows: XLA computes one index per point, not one per cell (a third
+    of the time on CPUs). Points outside are sent out of bounds, and dropped whole.
+    """
     k = kernel.shape[0]
-    o = jnp.arange(k) - k // 2 + spec.margin
-    rows = rc[:, 0, None, None] + o[:, None]
-    cols = rc[:, 1, None, None] + o[None, :]
     P = spec.padded
-    flat = jnp.where(inside[:, None, None], rows * P + cols, P * P)
-    # Materialize indices and values: fused into the scatter, XLA recomputes them per update.
-    flat, vals = jax.lax.optimization_barrier((flat, jnp.broadcast_to(kernel, flat.shape)))
-    grid = jnp.zeros(P * P, jnp.uint8).at[flat.reshape(-1)].max(vals.reshape(-1), mode="drop")
-    return grid.reshape(P, P)
+    corner = jnp.where(inside[:, None], rc - k // 2 + spec.margin, P)
+    dims = jax.lax.ScatterDimensionNumbers(
+        update_window_dims=(1, 2), inserted_window_dims=(), scatter_dims_to_operand_dims=(0, 1)
+    )
+    windows = jnp.broadcast_to(kernel, (rc.shape[0], k, k))
+    mode = jax.lax.GatherScatterMode.FILL_OR_DROP
+    return jax.lax.scatter_max(jnp.zeros((P, P), jnp.uint8), corner, windows, dims, mode=mode)
 
 
 def likelihood_grid(
@@ -191,13 +204,15 @@ def likelihood_grid(
     """The smeared grid of the reference points (masked ones and those outside the grid ignored).
 
     The kernels are scattered point by point (cost m (2h+1)^2), the coarse level is a dense
-    sliding max (one pass per axis over the padded grid).
+    sliding max (one pass per axis over the padded grid, whose zero margin it relies on).
     """
     rc = cell_of(spec, center_xy, points_world)
     finite = jnp.all(jnp.isfinite(points_world - center_xy), axis=-1)  # NaN casts to an arbitrary cell
     inside = mask & finite & jnp.all((rc >= 0) & (rc < spec.cells), axis=-1)
     values = _splat(spec, rc, inside, _kernel(spec, params))
-    pooled = _forward_max(values, spec.block)
+    # A grid of no point is its own pooled copy. As a loop the copy is also computed once into memory:
+    # XLA would otherwise fuse the sliding max into the search's gathers and redo it per lookup.
+    pooled = run_if(jnp.any(inside), lambda v: _forward_max(v, spec.block), values)
     return LikelihoodGrid(values, pooled, jnp.asarray(center_xy, jnp.float32))
 
 

@@ -58,9 +58,10 @@ def _scan(pose, segments=ROOM, max_range=6.0):
     )
 
 
-@pytest.mark.parametrize("block", [4, 5])
-def test_grid_matches_numpy_smear_and_max_pool(block):
-    spec = MatchSpec(cells=96, resolution=0.02, window_cells=6, block=block, smear_half_cells=3)
+# (block, window, smear reach): the last one's margin is set by the smear and the block, not the window.
+@pytest.mark.parametrize("block, window, half", [(4, 6, 3), (5, 6, 3), (8, 1, 6)])
+def test_grid_matches_numpy_smear_and_max_pool(block, window, half):
+    spec = MatchSpec(cells=96, resolution=0.02, window_cells=window, block=block, smear_half_cells=half)
     rng = np.random.default_rng(0)
     center = np.array([0.3, -0.2])
     pts = center + rng.uniform(-1.1, 1.1, (40, 2))  # some fall outside the 1.92 m grid
