@@ -160,10 +160,10 @@ def _kernel(spec: MatchSpec, params: MatchParams) -> Array:
 def _forward_max(x: Array, b: int) -> Array:
     """y[i, j] = max of x over the b x b cells starting at (i, j), zero beyond the end.
 
-    Needs the last b - 1 columns of x to be zero (the grid's margin): then a shift along a row of
-    the flattened grid equals the shift within the row, and both axes are passes over contiguous
-    memory, one fused max of b shifted slices each (on CPUs a shift within rows, or a transpose,
-    costs about ten times as much).
+    Needs the first b - 1 columns of x to be zero (the grid's margin): then a shift of the flattened
+    grid that runs past a row's end reads those zeros, as the shift within the row reads zeros
+    beyond its end. So both axes are passes over contiguous memory, one fused max of b shifted
+    slices each (on CPUs a shift within rows, or a transpose, costs about ten times as much).
     """
     n = x.shape[0] * x.shape[1]
     flat = jnp.pad(x.reshape(-1), (0, b - 1))
@@ -196,8 +196,8 @@ def _splat(spec: MatchSpec, rc: Array, inside: Array, kernel: Array) -> Array:
         grid = jnp.zeros((P, P), dtype)
         return lambda: jax.lax.scatter_max(grid, corner, windows.astype(dtype), dims, mode=mode).astype(jnp.uint8)
 
-    # GPUs have no 8-bit atomic max (XLA loops a 32-bit compare-and-swap): 32-bit cells there are
-    # 1.4x faster for the whole SLAM fleet; on CPUs 8-bit cells are 1.3x faster.
+    # GPUs have no 8-bit atomic max (XLA loops a 32-bit compare-and-swap): 32-bit cells there make
+    # the whole SLAM fleet about 1.3x faster; on CPUs 8-bit cells are about 1.3x faster.
     return jax.lax.platform_dependent(cuda=scatter(jnp.int32), default=scatter(jnp.uint8))
 
 
