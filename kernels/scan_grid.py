@@ -157,24 +157,27 @@ def _kernel(spec: MatchSpec, params: MatchParams) -> Array:
     return jnp.round(GRID_MAX * jnp.exp(-0.5 * d2 / params.smear_sigma**2)).astype(jnp.uint8)
 
 
+def _forward_max_axis0(x: Array, b: int) -> Array:
+    """y[i] = max of x[i : i + b] along the first axis, zero beyond the end: one fused max of b shifted
+    slices over contiguous memory."""
+    n = x.shape[0]
+    padded = jnp.pad(x, [(0, b - 1)] + [(0, 0)] * (x.ndim - 1))
+    y = padded[:n]
+    for k in range(1, b):
+        y = jnp.maximum(y, padded[k : k + n])
+    return y
+
+
 def _forward_max(x: Array, b: int) -> Array:
     """y[i, j] = max of x over the b x b cells starting at (i, j), zero beyond the end.
 
     Needs the first b - 1 columns of x to be zero (the grid's margin): then a shift of the flattened
     grid that runs past a row's end reads those zeros, as the shift within the row reads zeros
-    beyond its end. So both axes are passes over contiguous memory, one fused max of b shifted
-    slices each (on CPUs a shift within rows, or a transpose, costs about ten times as much).
+    beyond its end. So both axes are passes along a first axis (on CPUs a shift within rows, or a
+    transpose, costs about ten times as much).
     """
-    n = x.shape[0] * x.shape[1]
-    flat = jnp.pad(x.reshape(-1), (0, b - 1))
-    y = flat[:n]
-    for k in range(1, b):
-        y = jnp.maximum(y, flat[k : k + n])
-    rows = jnp.pad(y.reshape(x.shape), [(0, b - 1), (0, 0)])
-    z = rows[: x.shape[0]]
-    for k in range(1, b):
-        z = jnp.maximum(z, rows[k : k + x.shape[0]])
-    return z
+    along_rows = _forward_max_axis0(x.reshape(-1), b).reshape(x.shape)
+    return _forward_max_axis0(along_rows, b)
 
 
 def _splat(spec: MatchSpec, rc: Array, inside: Array, kernel: Array) -> Array:
