@@ -35,7 +35,7 @@ _MIN_IMU_WEIGHT = 1e-6
 # Below this total foot weight there is no foot to average over: v_base is set to zero.
 _MIN_TOTAL_WEIGHT = 1e-6
 # Variance of v_base (m/s)^2 reported when no foot measures it.
-_UNOBSERVED_VAR = 1e4
+UNOBSERVED_VAR = 1e4
 
 
 class Twist(eqx.Module):
@@ -133,7 +133,7 @@ def body_twist(
     D_inv_St = jnp.stack([spd_solve(lhs + w_imu * eye, S_bar[i]) for i in range(3)], -1)  # D^-1 S^T
     cov_v = sigma2 * (eye / total + S_bar @ D_inv_St)
     # No stance foot: v_base is not measured at all (a large but finite variance).
-    cov_v = jnp.where(has_feet & finite, cov_v, _UNOBSERVED_VAR * eye)
+    cov_v = jnp.where(has_feet & finite, cov_v, UNOBSERVED_VAR * eye)
     return Twist(
         v_base=jnp.where(finite, v_base, 0.0),
         omega_base=jnp.where(finite, omega, 0.0),

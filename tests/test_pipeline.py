@@ -143,6 +143,29 @@ def test_a_foot_that_touches_down_ramps_into_the_twist(robot, fixed_feet_log):
     np.testing.assert_array_equal(weight[False], contact)
 
 
+def test_a_held_twist_keeps_the_last_covariance_and_grows(robot, fixed_feet_log):
+    # All four feet up for samples 100-104: the twist is not observed, the last one is held, and its
+    # covariance is the last observed one plus (held_accel_std x time held)^2 (not the solve's
+    # "no foot" variance, which would void any constraint built on the held twist).
+    log = dict(fixed_feet_log)
+    contact = log["gt_contact"].copy()
+    contact[100:105] = False
+    log["gt_contact"] = contact
+    out, _ = run(robot, log)
+    no_stance = np.asarray(out.flags.no_stance[0])
+    # Back down at 105, the feet ramp in over settle_s: the twist is observed again a few samples later.
+    end = 105 + int(np.argmin(no_stance[105:]))
+    assert no_stance[100:end].all() and not no_stance[:100].any() and not no_stance[end:].any()
+    assert 105 < end <= 105 + int(np.ceil(float(pipeline.PipelineParams.default().settle_s) * RATE_HZ))
+    v, cov = np.asarray(out.v_base[0], np.float64), np.asarray(out.cov_v_base[0], np.float64)
+    np.testing.assert_array_equal(v[100:end], np.broadcast_to(v[99], (end - 100, 3)))
+    std = float(pipeline.PipelineParams.default().held_accel_std)
+    held_s = (np.arange(100, end) - 99) / RATE_HZ
+    expected = cov[99] + (std * held_s)[:, None, None] ** 2 * np.eye(3)
+    np.testing.assert_allclose(cov[100:end], expected, rtol=1e-5, atol=1e-9)
+    assert cov[end].max() < 1.0  # observed again: the solve's own covariance
+
+
 def test_bad_data_is_flagged_and_never_reaches_the_trajectory(robot, fixed_feet_log):
     """A fleet of two: robot 0 clean, robot 1 with NaN joints, NaN gyro, a fall and a time gap."""
     clean = fixed_feet_log

@@ -22,7 +22,8 @@ Bad data never reaches the trajectory as NaN; each case is flagged per sample (`
 non-finite joint readings hold the joint's last value; a non-finite gyro reading is replaced by the last
 one, and a non-finite accelerometer reading or reported attitude does not correct the attitude;
 saturated torques or non-finite torques skip the observer step (contacts held); a step with fewer
-than `min_stance` feet or an invalid solve reuses the last good twist; a time gap longer than
+than `min_stance` feet or an invalid solve reuses the last good twist (its covariance that of the last
+good one plus (`held_accel_std` x the time held)^2); a time gap longer than
 `max_gap_s` is not integrated (pose held) and restarts the observer; a robot whose base tilts past
 `fall_tilt_rad`, or whose input `valid` goes False, is marked fallen from then on and its pose held.
 
@@ -60,6 +61,7 @@ from jaxquad.estimate.pipeline_types import (
 from jaxquad.kernels import ContactEstimate, ContactObserver, ObserverParams, robust_body_twist, rolling_contact
 from jaxquad.kernels import floor as flr
 from jaxquad.kernels.lie import SO3, rotation_matrix
+from jaxquad.kernels.twist import UNOBSERVED_VAR
 
 # Stance time (s) of a foot already down when the log starts (it counts as settled); also the clock's cap.
 _SETTLED_S = 1e3
@@ -136,6 +138,8 @@ def pipeline_init(
         stance_s=jnp.full(n_feet, _SETTLED_S, first.gyro.dtype),
         v_last=zeros3,
         omega_last=zeros3,
+        cov_last=UNOBSERVED_VAR * jnp.eye(3, dtype=first.gyro.dtype),
+        held_s=jnp.zeros((), first.gyro.dtype),
         fallen=jnp.asarray(False),
         floor=flr.floor_init(p0_world_base[2]),
     )
@@ -248,6 +252,11 @@ def pipeline_step(
     tw = rob.twist
     tw_ok = tw.valid & tw.linear_observed
     v_base = jnp.where(tw_ok, tw.v_base, c.v_last)
+    # A held twist is as good as the last observed one, less what the base may have accelerated since
+    # (the solve's own covariance without stance says nothing about the held value).
+    held_s = jnp.where(tw_ok, 0.0, c.held_s + dt_int)
+    cov_last = jnp.where(tw_ok, tw.cov_v_base, c.cov_last)
+    cov_v_base = cov_last + (params.held_accel_std * held_s) ** 2 * jnp.eye(3, dtype=cov_last.dtype)
     omega = jnp.where(tw_ok, tw.omega_base, omega_imu)
 
     # 6. pose: the previous sample's twist over dt; held once fallen.
@@ -274,6 +283,8 @@ def pipeline_step(
         stance_s=stance_s,
         v_last=jnp.where(fallen, 0.0, v_base),
         omega_last=jnp.where(fallen, 0.0, omega),
+        cov_last=cov_last,
+        held_s=held_s,
         fallen=fallen,
         floor=_hold(~fallen, floor_state, c.floor),
     )
@@ -295,7 +306,7 @@ def pipeline_step(
         force_z=force_z,
         force_z_filtered=force_f,
         qd=qd_use,
-        cov_v_base=tw.cov_v_base,
+        cov_v_base=cov_v_base,
         twist_weight=w_twist,
         slip=rob.slip,
         flags=flags,

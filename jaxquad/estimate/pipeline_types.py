@@ -36,6 +36,7 @@ class PipelineParams(eqx.Module):
     sigma_prior: Float[Array, ""]  # m/s: prior foot-velocity noise of the twist covariance
     prior_dof: Float[Array, ""]  # its weight in degrees of freedom
     settle_s: Float[Array, ""]  # s: a foot's twist weight ramps from 0 to 1 over its first settle_s of stance
+    held_accel_std: Float[Array, ""]  # m/s^2: a held twist's std grows by this times the time it has been held
     floor: flr.FloorParams  # height filter (kernels.floor)
 
     @classmethod
@@ -55,6 +56,7 @@ class PipelineParams(eqx.Module):
             sigma_prior=jnp.asarray(0.039),
             prior_dof=jnp.asarray(3.0),
             settle_s=jnp.asarray(0.032),
+            held_accel_std=jnp.asarray(2.0),
             floor=flr.FloorParams.default(),
         )
 
@@ -124,7 +126,7 @@ class Estimate(eqx.Module):
     force_z: Float[Array, "*B F"]  # observer force (N), 0 for truth/sensor contacts
     force_z_filtered: Float[Array, "*B F"]
     qd: Float[Array, "*B nu"]  # joint velocities used
-    cov_v_base: Float[Array, "*B 3 3"]  # (m/s)^2: covariance of the twist's v_base (that sample's solve)
+    cov_v_base: Float[Array, "*B 3 3"]  # (m/s)^2: covariance of v_base (that sample's solve, or the held one's)
     twist_weight: Float[Array, "*B F"]  # each foot's weight in the twist: the contact weight, ramped over settle_s
     slip: Bool[Array, "*B F"]  # stance feet the robust twist flagged as slipping
     flags: Flags
@@ -144,6 +146,8 @@ class PipelineState(eqx.Module):
     stance_s: Float[Array, "F"]  # s each foot has been in contact (0 in swing)
     v_last: Float[Array, "3"]
     omega_last: Float[Array, "3"]
+    cov_last: Float[Array, "3 3"]  # (m/s)^2: covariance of the last observed v_base
+    held_s: Float[Array, ""]  # s since v_base was last observed
     fallen: Bool[Array, ""]
     floor: flr.FloorState
 
