@@ -73,10 +73,13 @@ def ray_cells(spec: GridSpec, row0, col0, row1, col1) -> tuple[Array, Array, Arr
     """Bresenham cells of ONE ray: (row, col) of `spec.max_steps` steps and the step count n to the
     end cell (steps 0..n are the line, n the end cell; later steps are padding)."""
     d_col, d_row = col1 - col0, row1 - row0
-    a_col, a_row = jnp.abs(d_col), jnp.abs(d_row)
+    # |d| in float32 (exact below 2^24 cells): XLA on CUDA GPUs (jax 0.11) compiled the int32 maximum
+    # of the two abs values, in every form tried, as if abs(d_col) were d_col, cutting short every ray
+    # with d_col < 0 (`test_scan_cells_equal_numpy_bresenham` fails there without this).
+    a_col, a_row = jnp.abs(d_col.astype(jnp.float32)), jnp.abs(d_row.astype(jnp.float32))
     x_major = a_col >= a_row
-    n = jnp.maximum(a_col, a_row)
-    major, minor = jnp.where(x_major, a_col, a_row), jnp.where(x_major, a_row, a_col)
+    major = jnp.where(x_major, a_col, a_row).astype(jnp.int32)
+    minor = jnp.where(x_major, a_row, a_col).astype(jnp.int32)
     k = jnp.arange(spec.max_steps, dtype=jnp.int32)
     # offset = ceil(num / den) with num = 2 k minor - major, den = 2 major: a float estimate (integer
     # division is slow on CPUs) made exact by one integer correction each way.
@@ -85,7 +88,7 @@ def ray_cells(spec: GridSpec, row0, col0, row1, col1) -> tuple[Array, Array, Arr
     offset = jnp.where((offset - 1) * den >= num, offset - 1, jnp.where(offset * den < num, offset + 1, offset))
     step_col = jnp.where(x_major, k, offset) * jnp.sign(d_col)
     step_row = jnp.where(x_major, offset, k) * jnp.sign(d_row)
-    return row0 + step_row, col0 + step_col, n
+    return row0 + step_row, col0 + step_col, major
 
 
 def scan_codes(
