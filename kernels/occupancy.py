@@ -73,7 +73,7 @@ def ray_cells(spec: GridSpec, row0, col0, row1, col1) -> tuple[Array, Array, Arr
     """Bresenham cells of ONE ray: (row, col) of `spec.max_steps` steps and the step count n to the
     end cell (steps 0..n are the line, n the end cell; later steps are padding)."""
     d_col, d_row = col1 - col0, row1 - row0
-    # |d| in float32 (exact below 2^24 cells): XLA on CUDA GPUs (jax 0.11) compiled the int32 maximum
+    # |d| in float32 (exact below 2^24 cells): XLA on CUDA GPUs (jax 0.11.2) compiled the int32 maximum
     # of the two abs values, in every form tried, as if abs(d_col) were d_col, cutting short every ray
     # with d_col < 0 (`test_scan_cells_equal_numpy_bresenham` fails there without this).
     a_col, a_row = jnp.abs(d_col.astype(jnp.float32)), jnp.abs(d_row.astype(jnp.float32))

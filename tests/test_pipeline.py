@@ -166,6 +166,30 @@ def test_a_held_twist_keeps_the_last_covariance_and_grows(robot, fixed_feet_log)
     assert cov[end].max() < 1.0  # observed again: the solve's own covariance
 
 
+def test_a_twist_held_across_a_gap_or_a_fall_is_unobserved(robot, fixed_feet_log):
+    # Feet up from sample 100 in both robots; robot 0's log has a 200 ms gap before sample 103, robot 1
+    # falls at sample 103. From there the held twist (robot 1's zeroed by the fall) was not measured.
+    clean = fixed_feet_log
+    fleet = {k: (np.stack([v, v]) if k not in ("t", "robot", "joint_names") else v) for k, v in clean.items()}
+    fleet["gt_contact"] = fleet["gt_contact"].copy()
+    fleet["gt_contact"][:, 100:] = False
+    fleet["t"] = clean["t"].copy()
+    fleet["t"][103:] += 0.2
+    fleet["quat_wxyz"] = fleet["quat_wxyz"].copy()
+    fleet["quat_wxyz"][1, 103:] = [np.cos(0.75), np.sin(0.75), 0, 0]  # rolled 1.5 rad: fallen
+    fleet["fallen"] = np.array([False, True])
+    fleet["valid"] = np.ones((2, clean["t"].size), bool)
+    inputs, config = pipeline.inputs_from_log(robot, fleet, "truth")
+    config = dataclasses.replace(config, rolling=False)  # pinned feet, as `run`
+    out = pipeline.estimate_fleet(robot, config, pipeline.PipelineParams.default(), inputs)
+    cov = np.asarray(out.cov_v_base, np.float64)
+    assert np.asarray(out.flags.no_stance)[:, 100:].all()
+    assert np.asarray(out.flags.gap)[0, 103] and np.asarray(out.flags.fallen)[1, 103]
+    assert (cov[:, 100:103].max(axis=(-1, -2)) < 1.0).all()  # held before the gap or the fall
+    np.testing.assert_array_less(9.99e3, np.diagonal(cov[0, 103:], axis1=-2, axis2=-1))  # from the gap on
+    np.testing.assert_array_less(9.99e3, np.diagonal(cov[1, 104:], axis1=-2, axis2=-1))  # after the fall
+
+
 def test_bad_data_is_flagged_and_never_reaches_the_trajectory(robot, fixed_feet_log):
     """A fleet of two: robot 0 clean, robot 1 with NaN joints, NaN gyro, a fall and a time gap."""
     clean = fixed_feet_log
