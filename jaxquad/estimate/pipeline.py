@@ -23,9 +23,10 @@ non-finite joint readings hold the joint's last value; a non-finite gyro reading
 one, and a non-finite accelerometer reading or reported attitude does not correct the attitude;
 saturated torques or non-finite torques skip the observer step (contacts held); a step with fewer
 than `min_stance` feet or an invalid solve reuses the last good twist (its covariance that of the last
-good one plus (`held_accel_std` x the time held)^2, unobserved across a gap or after a fall); a time gap longer than
-`max_gap_s` is not integrated (pose held) and restarts the observer; a robot whose base tilts past
-`fall_tilt_rad`, or whose input `valid` goes False, is marked fallen from then on and its pose held.
+good one plus (`held_accel_std` x the time held)^2, unobserved across a gap or after a fall); a time
+gap longer than `max_gap_s` is not integrated (pose held) and restarts the observer; a robot whose base
+tilts past `fall_tilt_rad`, or whose input `valid` goes False, is marked fallen from then on and its pose
+held.
 
 `pipeline_init` / `pipeline_step` are one sample of one robot (`state, out = pipeline_step(..., state,
 sample)`), what a closed loop calls as its sensors arrive; `estimate_robot` scans them over a log (params a
@@ -256,9 +257,9 @@ def pipeline_step(
     # (the solve's own covariance without stance says nothing about the held value). Held across a
     # time gap (of unknown length) or zeroed by a fall, nothing measured it.
     held_s = jnp.where(tw_ok, 0.0, c.held_s + dt_int)
-    unobserved = UNOBSERVED_VAR * jnp.eye(3, dtype=c.cov_last.dtype)
-    cov_last = jnp.where(tw_ok, tw.cov_v_base, jnp.where(gap, unobserved, c.cov_last))
-    cov_v_base = cov_last + (params.held_accel_std * held_s) ** 2 * jnp.eye(3, dtype=cov_last.dtype)
+    eye3 = jnp.eye(3, dtype=c.cov_last.dtype)
+    cov_last = jnp.where(tw_ok, tw.cov_v_base, jnp.where(gap, UNOBSERVED_VAR * eye3, c.cov_last))
+    cov_v_base = cov_last + (params.held_accel_std * held_s) ** 2 * eye3
     omega = jnp.where(tw_ok, tw.omega_base, omega_imu)
 
     # 6. pose: the previous sample's twist over dt; held once fallen.
@@ -285,7 +286,7 @@ def pipeline_step(
         stance_s=stance_s,
         v_last=jnp.where(fallen, 0.0, v_base),
         omega_last=jnp.where(fallen, 0.0, omega),
-        cov_last=jnp.where(fallen, unobserved, cov_last),
+        cov_last=jnp.where(fallen, UNOBSERVED_VAR * eye3, cov_last),
         held_s=held_s,
         fallen=fallen,
         floor=_hold(~fallen, floor_state, c.floor),
