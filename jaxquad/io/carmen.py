@@ -14,16 +14,22 @@ describe the same scans twice). FLASER lines hold no angles: the beams are taken
 -fov/2, at fov/(n - 1) per beam when n is odd (both edges measured: 181, 361 beams) and at fov/n
 when n is even (180, 360 beams). A ROBOTLASER1 beam i is at start_angle + i angular_resolution, and
 its readings at or beyond maximum_range become +inf (no return); FLASER readings are kept as they
-are (a log's no-return value, e.g. 81.91 m, is then left out by the matcher's range_max). Odometry
-comes from ODOM lines when the log has any, else from each scan's odometry fields. Every other
+are (a log's no-return value, e.g. 81.91 m, is then left out by the matcher's range_max). Each
+scan's odometry pose is the one its line records (FLASER's odom_x odom_y odom_theta, ROBOTLASER1's
+robot pose); ODOM lines are kept as the log's odometry stream (`odom_t`, `odom_xytheta`). Every other
 upper-case tag (PARAM, SYNC, TRUEPOS, RAWLASER1-4, RLASER, ...) is skipped; anything else is an
 error naming the file and line.
+
+Real logs are not always in time order: the scans are taken in the file's order, each keeping its own
+`ipc_timestamp` even where it is earlier than the scan before (clock jitter, or a log rewritten by a
+SLAM program); the SLAM's clock holds the latest stamp seen (`scan_clock`). ODOM lines out of time
+order (e.g. the `ODOM ... 0 host 0` lines of corrected logs) are dropped.
 
 `.npz` laser log (float64 arrays):
 
 | key | shape | unit / meaning | |
 |---|---|---|---|
-| `scan_t` | (S,) | s, non-decreasing | required |
+| `scan_t` | (S,) | s, each scan's own stamp, in the scans' order (see above) | required |
 | `ranges` | (S, B) | m along each beam; +inf = no return, NaN or <= 0 = invalid | required |
 | `bearings` | (B,) | rad, beam angles in the laser frame, counter-clockwise from +x | required |
 | `odom_t` | (K,) | s, non-decreasing | required |
@@ -101,9 +107,8 @@ def validate_laser_log(log: LaserLog, where: str) -> None:
             raise ValueError(f"{where}: key '{k}' has non-finite values")
     if S == 0 or B == 0:
         raise ValueError(f"{where}: no scans (key 'ranges' has shape {log.ranges.shape})")
-    for k in ("scan_t", "odom_t"):
-        if np.any(np.diff(getattr(log, k)) < 0):
-            raise ValueError(f"{where}: key '{k}' is not non-decreasing")
+    if np.any(np.diff(log.odom_t) < 0):
+        raise ValueError(f"{where}: key 'odom_t' is not non-decreasing")
 
 
 def _floats(tokens: list[str], where: str) -> list[float]:
@@ -192,11 +197,10 @@ def read_carmen(path: str | os.PathLike, flaser_fov_deg: float = 180.0) -> Laser
             raise ValueError(f"{where}: {tag} scan has {len(r)} beams or other angles than the first scan ({n0})")
     scan_t = np.array([row[0] for row in rows])
     scan_odom = np.array([row[2] for row in rows], np.float64)
-    for (t0, *_), (t1, *_, where) in zip(rows, rows[1:]):
-        if t1 < t0:
-            raise ValueError(f"{where}: {tag} timestamp {t1} is earlier than the previous scan's {t0}")
     if odom:
-        odom_t, odom_xy = np.array([o[0] for o in odom]), np.array([o[1] for o in odom])
+        odom_t = np.array([o[0] for o in odom])
+        keep = odom_t >= np.maximum.accumulate(odom_t)  # in time order: not earlier than any line before
+        odom_t, odom_xy = odom_t[keep], np.array([o[1] for o in odom])[keep]
     else:
         odom_t, odom_xy = scan_t, scan_odom
     offset = np.zeros(3) if rows[0][4] is None else _base_laser(rows[0][2], rows[0][4])
@@ -228,6 +232,11 @@ def save_laser_npz(path: str | os.PathLike, log: LaserLog) -> Path:
     with atomic_open(path, "wb") as f:
         np.savez(f, **arrays)
     return Path(path)
+
+
+def scan_clock(scan_t: np.ndarray) -> np.ndarray:
+    """The SLAM's clock at each scan: the latest stamp so far (stamps that go back hold it)."""
+    return np.maximum.accumulate(np.asarray(scan_t, np.float64))
 
 
 def load_laser_log(path: str | os.PathLike, flaser_fov_deg: float = 180.0) -> LaserLog:

@@ -62,7 +62,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--params",
         default=None,
-        help="SLAM parameters (YAML; any subset of jaxquad/slam/slam.yaml; default: that file)",
+        help="SLAM parameters (YAML; any subset of jaxquad/slam/slam.yaml) over the defaults: slam.yaml "
+        "for robot logs, slam.yaml with jaxquad/slam/laser.yaml's overrides for 2D laser logs",
     )
     parser.add_argument(
         "--contacts",
@@ -200,8 +201,8 @@ def run(args: argparse.Namespace) -> int:
     from jaxquad.cli import progress_bar
     from jaxquad.io import atomic_dir, check_output_dir, to_json, write_json
     from jaxquad.slam import report
-    from jaxquad.slam.params import DEFAULTS_FILE, load_params, slam_config
-    from jaxquad.slam.run import final_poses, map_grid, run_fleet
+    from jaxquad.slam.params import DEFAULTS_FILE, LASER_FILE, load_params, slam_config
+    from jaxquad.slam.run import final_poses, map_grid, nodes_needed, run_fleet
 
     path = Path(args.input)
     if not path.is_file():
@@ -210,18 +211,25 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--band-height must be >= 1, got {args.band_height}")
     resolve_variant(args)
     check_output_dir(args.out, kind=SUMMARY_KIND)
-    values = load_params(args.params)
     fmt = detect_format(path) if args.format == "auto" else args.format
+    laser = fmt in ("carmen", "laser-npz")
+    values = load_params(args.params, laser=laser)
     # The bar appears once the inputs are checked: the estimator's start, or the first SLAM chunk.
     with progress_bar("slam", "scan") as progress:
         x, names, true_maps, lo_constraints = _load(args, path, fmt, values, progress)
         grid = map_grid(x, values["resolution"], values["max_laser_range"])
         spec, params = slam_config(values, grid, lo_constraints, x["T_base_laser"])
+        # Enough node slots for every node the scans add (a long log needs more than the default).
+        needed = nodes_needed(params, x)
+        if needed > spec.nodes:
+            values["node_capacity"] = -(-needed // 256) * 256
+            spec, params = slam_config(values, grid, lo_constraints, x["T_base_laser"])
         state, out, _ = run_fleet(spec, params, x, progress, args.devices)
     if not parallel.is_main():  # every process ran the same SLAM and holds every robot's results
         return 0
     final = final_poses(state, out)
     t = np.asarray(x["t"], np.float64)
+    stamp = np.asarray(x.get("stamp", t), np.float64)  # each scan's own time, for the files
     summary = {
         "kind": SUMMARY_KIND,
         "input": str(path),
@@ -232,8 +240,10 @@ def run(args: argparse.Namespace) -> int:
         "odometry": args.odometry if fmt == "robot" else "log",
         "vo_leg_odometry": args.vo_leg_odometry if fmt == "robot" and args.odometry == "vo" else None,
         "lo_constraints": lo_constraints,
-        "params_file": str(args.params or DEFAULTS_FILE),
+        "params_defaults": str(LASER_FILE if laser else DEFAULTS_FILE),
+        "params_file": None if args.params is None else str(args.params),
         "params": values,
+        "stamps_earlier_than_previous": int((np.diff(stamp) < 0).sum()),  # kept as stamped (jaxquad.io.carmen)
         "grid": {k: getattr(grid, k) for k in ("rows", "cols", "resolution", "origin_x", "origin_y", "max_range")},
         "robots": [],
     }
@@ -242,7 +252,7 @@ def run(args: argparse.Namespace) -> int:
             folder = tmp if len(names) == 1 else tmp / name
             folder.mkdir(exist_ok=True)
             s_i, o_i = (report.robot_slice(a, i) for a in (state, out))
-            report.write_robot(folder, grid, t, s_i, o_i, final[i])
+            report.write_robot(folder, grid, stamp, s_i, o_i, final[i])
             rep = report.robot_report(spec, t, s_i, o_i, final[i], x, i, None if true_maps is None else true_maps[i])
             summary["robots"].append({"name": name, **rep})
             if true_maps is not None:

@@ -44,7 +44,8 @@ to j (each node's link and leg-odometry information, compounded) plus the match'
 `loop_max_chi2`. A narrow depth-camera scan (~87 deg) that sees one wall or a room like another can
 match confidently metres away from where the robot is; without the test that one edge, weighted by
 its response spread, drags the whole graph. An accepted closure adds its edge and the whole graph is
-optimized (`kernels.posegraph`, node 0 fixed). The occupancy map
+optimized (`kernels.posegraph`, node 0 fixed). Match links are Cauchy-robust and loop edges plain by
+default (`robust_links`, `robust_loops`; laser logs swap them: there the links are the only chain). The occupancy map
 takes every node's scan at its node's pose; after an optimization it is redrawn from all nodes
 (`SlamSpec.refresh_map`; a fleet may clear that and call `refresh_map` itself).
 """
@@ -54,7 +55,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
 from jaxquad.kernels.control_flow import run_if
 from jaxquad.kernels.lie import se2, xy_theta
@@ -230,7 +231,7 @@ def _add_node(spec: SlamSpec, params: SlamParams, state: SlamState, pred, inp: S
         ),
     )
     link_kind = jnp.where(good, EDGE_MATCH, EDGE_ODOMETRY)
-    link_robust = jnp.where(good, ROBUST_CAUCHY, ROBUST_NONE)
+    link_robust = jnp.where(good & params.robust_links, ROBUST_CAUCHY, ROBUST_NONE)
     state = _add_edge(state, last, j, z_link, info_link, link_robust, link_kind, ~first)
     if spec.lo_constraints != "off":
         state = _add_edge(state, last, j, z_leg, info_leg, ROBUST_NONE, EDGE_LEG, leg_ok)
@@ -272,7 +273,8 @@ def _close_loop(spec: SlamSpec, params: SlamParams, state: SlamState, j, respons
     cov_z = _to_base_cov(params, cand.covariance) * params.match_cov_scale
     chi2 = _loop_chi2(state, cand.i, j, z, cov_z)
     accept = cand.accept & (chi2 <= params.loop_max_chi2)
-    state = _add_edge(state, cand.i, j, z, _information(cov_z), ROBUST_NONE, EDGE_LOOP, accept)
+    robust = jnp.where(params.robust_loops, ROBUST_CAUCHY, ROBUST_NONE)
+    state = _add_edge(state, cand.i, j, z, _information(cov_z), robust, EDGE_LOOP, accept)
     # Robots without a closure run no solver iteration (the loop's trip count is 0), also under vmap.
     trips = jnp.where(accept, params.solver.max_iterations, 0)
     solver = eqx.tree_at(lambda s: s.max_iterations, params.solver, trips)
@@ -312,6 +314,32 @@ def _accumulate_lo(params: SlamParams, state: SlamState, inp: SlamInputs) -> Sla
     return eqx.tree_at(lambda s: (s.lo_cov, s.lo_ok), state, (jnp.where(ok, cov, state.lo_cov), ok))
 
 
+def _usable(inp: SlamInputs) -> Bool[Array, ""]:
+    return jnp.all(jnp.isfinite(inp.odom)) & jnp.any(inp.valid & ~jnp.isnan(inp.ranges)) & jnp.isfinite(inp.t)
+
+
+def _node_wanted(params: SlamParams, T_node_scan, t, t_prev, first) -> tuple[Bool[Array, ""], Bool[Array, ""]]:
+    """(moved, wanted): the travel test, and whether a usable scan becomes a node (see the module docstring)."""
+    moved = (jnp.linalg.norm(T_node_scan[:2]) >= params.min_travel) | (jnp.abs(T_node_scan[2]) >= params.min_rotation)
+    interval = jnp.maximum(params.min_interval, 1e-9)
+    new_slot = (params.min_interval <= 0) | (jnp.floor(t / interval) > jnp.floor(t_prev / interval))
+    return moved, first | (moved & new_slot)
+
+
+def count_nodes(params: SlamParams, inputs: SlamInputs) -> Int[Array, ""]:
+    """How many nodes one robot's scans (leading axis S) add with unbounded capacity: the node rule
+    alone, on the odometry and the clock (a laser log's node capacity is sized from it)."""
+
+    def body(carry, inp):
+        n, odom_last, t_prev = carry
+        _, wanted = _node_wanted(params, _between(odom_last, inp.odom), inp.t, t_prev, n == 0)
+        due = _usable(inp) & wanted
+        return (n + due.astype(jnp.int32), jnp.where(due, inp.odom, odom_last), inp.t), None
+
+    (n, _, _), _ = jax.lax.scan(body, (jnp.asarray(0, jnp.int32), jnp.zeros(3), jnp.asarray(0.0)), inputs)
+    return n
+
+
 def step(spec: SlamSpec, params: SlamParams, state: SlamState, inp: SlamInputs) -> tuple[SlamState, SlamOutput]:
     """One scan: maybe a new node (match, leg-odometry edge, loop closure, optimization), the map."""
     last = jnp.maximum(state.n_nodes - 1, 0)
@@ -321,12 +349,10 @@ def step(spec: SlamSpec, params: SlamParams, state: SlamState, inp: SlamInputs) 
     if spec.lo_constraints == "preintegrated":
         state = _accumulate_lo(params, state, inp)
 
-    moved = (jnp.linalg.norm(T_node_scan[:2]) >= params.min_travel) | (jnp.abs(T_node_scan[2]) >= params.min_rotation)
-    usable = jnp.all(jnp.isfinite(inp.odom)) & jnp.any(inp.valid & ~jnp.isnan(inp.ranges)) & jnp.isfinite(inp.t)
+    moved, wanted = _node_wanted(params, T_node_scan, inp.t, state.t_prev, first)
+    usable = _usable(inp)
     full = state.n_nodes >= spec.nodes
-    interval = jnp.maximum(params.min_interval, 1e-9)
-    new_slot = (params.min_interval <= 0) | (jnp.floor(inp.t / interval) > jnp.floor(state.t_prev / interval))
-    due = usable & ~full & (first | (moved & new_slot))
+    due = usable & ~full & wanted
 
     nan = jnp.asarray(jnp.nan)
     none = (state, nan, jnp.asarray(False), jnp.asarray(-1, jnp.int32), nan)

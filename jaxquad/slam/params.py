@@ -17,12 +17,15 @@ from jaxquad.kernels.scan_grid import MatchParams, MatchSpec, cells_for_range
 from jaxquad.slam.state import SlamParams, SlamSpec
 
 DEFAULTS_FILE = Path(__file__).with_name("slam.yaml")
+LASER_FILE = Path(__file__).with_name("laser.yaml")  # overrides of slam.yaml for 2D laser logs
 _INTEGER = (
     "scan_buffer_size",
     "loop_match_minimum_chain_size",
     "loop_chain_scans",
     "node_capacity",
     "solver_max_iterations",
+    "robust_match_links",
+    "robust_loop_edges",
 )
 _FRACTION = (
     "link_match_minimum_response_fine",
@@ -39,6 +42,8 @@ _MAY_BE_ZERO = (
     "loop_match_minimum_response_fine",
     "loop_minimum_travel",
     "loop_ambiguity_distance",
+    "robust_match_links",
+    "robust_loop_edges",
 )
 
 
@@ -58,10 +63,14 @@ def _read(path: Path) -> dict:
     return raw
 
 
-def load_params(path: str | os.PathLike | None = None) -> dict:
-    """The values of slam.yaml overridden by the file at `path` (checked)."""
+def load_params(path: str | os.PathLike | None = None, laser: bool = False) -> dict:
+    """The values of slam.yaml, for a 2D laser log (`laser`) overridden by laser.yaml, then by the
+    file at `path` (checked)."""
     values = _read(DEFAULTS_FILE)
     source = DEFAULTS_FILE
+    if laser:
+        values |= _read(LASER_FILE)
+        source = LASER_FILE
     if path is not None:
         source = Path(path)
         if not source.is_file():
@@ -80,6 +89,9 @@ def load_params(path: str | os.PathLike | None = None) -> dict:
             values[key] = int(v)
         if v < 0 or (v == 0 and key not in _MAY_BE_ZERO) or (key in _FRACTION and v > 1):
             raise ValueError(f"params file {source}: {key} = {v!r} is out of range")
+    for key in ("robust_match_links", "robust_loop_edges"):
+        if values[key] not in (0, 1):
+            raise ValueError(f"params file {source}: {key} must be 0 or 1, got {values[key]!r}")
     if values["loop_chain_scans"] < 1 or values["coarse_angle_resolution"] > values["coarse_search_angle_offset"]:
         raise ValueError(f"params file {source}: coarse_angle_resolution must not exceed coarse_search_angle_offset")
     return values
@@ -146,5 +158,7 @@ def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=
         velocity_max_dt=f(v["leg_velocity_max_dt"]),
         lo_correlation_s=f(v["leg_correlation_time"]),
         loop_max_chi2=f(v["loop_consistency_chi2"]),
+        robust_links=jnp.asarray(v["robust_match_links"] == 1),
+        robust_loops=jnp.asarray(v["robust_loop_edges"] == 1),
     )
     return spec, params

@@ -39,9 +39,12 @@ def _quat_yaw(theta: np.ndarray) -> np.ndarray:
 
 
 def tum_of(t: np.ndarray, pose: np.ndarray) -> TumTrajectory:
-    """The finite rows of 2D poses (S, 3) as a TUM trajectory at z = 0."""
-    keep = np.all(np.isfinite(pose), axis=1) & np.isfinite(t)
-    p = np.c_[pose[keep, :2], np.zeros(keep.sum())]
+    """The finite rows of 2D poses (S, 3) as a TUM trajectory at z = 0, in time order (a log's stamps
+    may go back); of scans with one stamp the first is kept (a TUM file has one pose per time)."""
+    keep = np.flatnonzero(np.all(np.isfinite(pose), axis=1) & np.isfinite(t))
+    keep = keep[np.argsort(t[keep], kind="stable")]
+    keep = keep[np.r_[True, np.diff(t[keep]) > 0]]
+    p = np.c_[pose[keep, :2], np.zeros(keep.size)]
     q = _quat_yaw(pose[keep, 2])
     return TumTrajectory(t[keep], p, q[:, [1, 2, 3, 0]])
 
@@ -64,7 +67,8 @@ def graph_of(state) -> G2oGraph:
 def _trajectory_scores(t: np.ndarray, pose: np.ndarray, gt: np.ndarray, valid: np.ndarray) -> dict:
     from jaxquad.estimate.run import trajectory_metrics
 
-    ok = valid & np.all(np.isfinite(pose), axis=1)
+    # Scans that do not advance the clock (a laser log's stamps that went back) are not scored.
+    ok = valid & np.all(np.isfinite(pose), axis=1) & np.r_[True, np.diff(t) > 0]
     if ok.sum() < 3:
         return {"error": f"only {int(ok.sum())} scans have a pose"}
     z = np.zeros((len(t), 1))

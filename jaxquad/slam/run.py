@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxquad import parallel
-from jaxquad.io.carmen import LaserLog
+from jaxquad.io.carmen import LaserLog, scan_clock
 from jaxquad.kernels.occupancy import GridSpec
 from jaxquad.slam import online
 from jaxquad.slam import state as slam_state
@@ -30,7 +30,8 @@ CHUNK = 64
 
 def laser_log_inputs(log: LaserLog) -> dict:
     """The SLAM inputs of a 2D laser log (one robot, no leg odometry): the odometry pose of each scan
-    is the one recorded with it, else the odometry interpolated at the scan's stamp."""
+    is the one recorded with it, else the odometry interpolated at the scan's stamp. `t` is the SLAM's
+    clock (`scan_clock`), `stamp` each scan's own stamp (for the trajectories written)."""
     if log.scan_odom_xytheta is not None:
         odom = log.scan_odom_xytheta
     else:
@@ -38,7 +39,8 @@ def laser_log_inputs(log: LaserLog) -> dict:
         odom = np.stack([np.interp(log.scan_t, log.odom_t, c) for c in (*log.odom_xytheta[:, :2].T, yaw)], -1)
     S = log.n_scans
     x = {
-        "t": log.scan_t,
+        "t": scan_clock(log.scan_t),
+        "stamp": log.scan_t,
         "odom": odom[None],
         "ranges": log.ranges[None],
         "bearings": log.bearings,
@@ -64,8 +66,9 @@ def map_grid(x: dict, resolution: float, max_range: float, margin: float = 2.0) 
     return grid_spec((float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])), float(resolution), float(max_range))
 
 
-def _inputs(x: dict, start: int, stop: int, size: int) -> online.SlamInputs:
-    """Scans start..stop of every robot, padded to `size` with scans that add nothing (NaN stamps)."""
+def _inputs(x: dict, start: int, stop: int, size: int, t0: float) -> online.SlamInputs:
+    """Scans start..stop of every robot, padded to `size` with scans that add nothing (NaN stamps);
+    times in seconds since `t0` (`_clock_origin`)."""
     pad = size - (stop - start)
 
     def take(a, fill, robot_axis=True):
@@ -75,7 +78,7 @@ def _inputs(x: dict, start: int, stop: int, size: int) -> online.SlamInputs:
         return np.pad(a, width, constant_values=fill)
 
     n = x["odom"].shape[0]
-    t = np.broadcast_to(take(x["t"], np.nan, False), (n, size))
+    t = np.broadcast_to(take(np.asarray(x["t"], np.float64) - t0, np.nan, False), (n, size))
     valid = take(x["valid"], False)
     r = take(x["ranges"], np.nan)
     ok = valid[..., None] & ~np.isnan(r)
@@ -90,6 +93,22 @@ def _inputs(x: dict, start: int, stop: int, size: int) -> online.SlamInputs:
         lo_twist_cov=f(take(x["lo_twist_cov"], 0.0)),
         lo_valid=jnp.asarray(take(x["lo_valid"], False) & valid),
     )
+
+
+def nodes_needed(params: online.SlamParams, x: dict) -> int:
+    """The most nodes any robot's scans add (`online.count_nodes`): the node capacity that never fills."""
+    S = x["odom"].shape[1]
+    t = np.asarray(x["t"], np.float64)
+    t0 = _clock_origin(t)
+    count = jax.jit(jax.vmap(online.count_nodes, in_axes=(None, 0)))
+    return int(np.max(count(params, _inputs(x, 0, S, S, t0))))
+
+
+def _clock_origin(t: np.ndarray) -> float:
+    """Whole thousands of seconds taken off the stamps before they go to float32 (a log's Unix stamps,
+    ~1.7e9 s, would round to 128 s), so that the node clock's slots stay where they were (0 for
+    simulated logs)."""
+    return float(1000.0 * np.floor(np.nanmin(t) / 1000.0)) if np.any(np.isfinite(t)) else 0.0
 
 
 @functools.cache
@@ -120,10 +139,11 @@ def run_fleet(spec: online.SlamSpec, params: online.SlamParams, x: dict, progres
     init, chunk, finish = _compiled(spec, mesh)
     params = parallel.place(params, mesh, None)
     states = init(params, parallel.place(jnp.asarray(x["bearings"], jnp.float32), mesh, None), n_batch)
+    t0 = _clock_origin(np.asarray(x["t"], np.float64))
     outs = []
     for start in range(0, S, CHUNK):
         stop = min(start + CHUNK, S)
-        inputs = parallel.place(parallel.pad(_inputs(x, start, stop, CHUNK), n_batch), mesh)
+        inputs = parallel.place(parallel.pad(_inputs(x, start, stop, CHUNK, t0), n_batch), mesh)
         states, out = chunk(params, states, inputs)
         outs.append(jax.tree.map(lambda a, k=stop - start: a[:n, :k], parallel.gather(out)))
         if progress is not None:

@@ -48,6 +48,8 @@ class SlamParams(eqx.Module):
     loop: LoopParams = eqx.field(default_factory=LoopParams)
     occupancy: OccupancyParams = eqx.field(default_factory=OccupancyParams)
     solver: SolverParams = eqx.field(default_factory=lambda: SolverParams(robust_width=jnp.asarray(3.0)))
+    robust_links: Bool[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(True))  # Cauchy match links
+    robust_loops: Bool[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(False))  # Cauchy loop edges
     T_base_laser: Float[Array, "3"] = eqx.field(default_factory=lambda: jnp.zeros(3))  # x, y (m), theta (rad)
     min_travel: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.1))  # m
     min_rotation: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.02))  # rad
