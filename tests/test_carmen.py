@@ -6,7 +6,15 @@ import math
 import numpy as np
 import pytest
 
-from jaxquad.io.carmen import LaserLog, flaser_bearings, load_laser_log, read_carmen, save_laser_npz, scan_clock
+from jaxquad.io.carmen import (
+    LaserLog,
+    flaser_bearings,
+    in_time_order,
+    load_laser_log,
+    read_carmen,
+    save_laser_npz,
+    scan_clock,
+)
 
 
 def _flaser(ranges, pose, odom, t):
@@ -85,6 +93,7 @@ def test_stamps_out_of_order_scans_kept_odom_dropped(tmp_path):
     """Scans stay in the file's order with their own stamps; ODOM lines earlier than one before go."""
     lines = [
         "ODOM 0 0 0 0 0 0 1.0 host 1.0",
+        "ODOM 0 0 0 0 0 0 1.5 host 1.5",
         _flaser([1.0, 2.0, 3.0], (0, 0, 0), (0.1, 0, 0), 2.0),
         "ODOM 0.1 0 0 0 0 0 0 host 0",  # a corrected log's marker line, stamped 0
         "ODOM 0.2 0 0 0 0 0 1.9 host 1.9",  # later than every ODOM line before it: kept
@@ -94,8 +103,35 @@ def test_stamps_out_of_order_scans_kept_odom_dropped(tmp_path):
     log = read_carmen(_write(tmp_path, lines))
     np.testing.assert_array_equal(log.scan_t, [2.0, 1.95])
     np.testing.assert_array_equal(log.scan_odom_xytheta[:, 0], [0.1, 0.2])
-    np.testing.assert_array_equal(log.odom_t, [1.0, 1.9, 2.5])
-    np.testing.assert_array_equal(scan_clock(log.scan_t), [2.0, 2.0])
+    np.testing.assert_array_equal(log.odom_t, [1.0, 1.5, 1.9, 2.5])
+    # Without ODOM lines the scans' odometry is the stream: the same rule keeps it in order.
+    log = read_carmen(_write(tmp_path, [ln for ln in lines if ln.startswith("FLASER")], "scans_only.clf"))
+    np.testing.assert_array_equal(log.odom_t, [1.95])
+
+
+def test_one_stray_stamp_is_the_one_out_of_order():
+    unix = 1.7e9 + np.arange(6.0)
+    cases = [
+        ([1.0, 2.0, 3.0], [1.0, 2.0, 3.0]),
+        ([1.0, 1e9, 2.0, 3.0], [1.0, 1.0, 2.0, 3.0]),  # one stamp far ahead holds nothing back
+        ([5.0, 1.0, 2.0, 3.0], [1.0, 1.0, 2.0, 3.0]),  # one far behind at the start
+        ([2.0, 2.0, 1.0], [2.0, 2.0, 2.0]),
+        (np.r_[0.0, unix[1:]], np.r_[0.0, unix[1:]]),  # a zero stamp before Unix ones is in order
+    ]
+    for t, clock in cases:
+        np.testing.assert_array_equal(scan_clock(np.asarray(t)), clock)
+    np.testing.assert_array_equal(in_time_order(np.array([1.0, 3.0, 2.0, 4.0])), [True, False, True, True])
+    # Against brute force: the mask is a longest non-decreasing subsequence.
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        t = rng.integers(0, 6, rng.integers(1, 9)).astype(float)
+        keep = in_time_order(t)
+        best = max(
+            bin(m).count("1")
+            for m in range(1 << t.size)
+            if np.all(np.diff(t[[i for i in range(t.size) if m >> i & 1]]) >= 0)
+        )
+        assert keep.sum() == best and np.all(np.diff(t[keep]) >= 0)
 
 
 @pytest.mark.parametrize(

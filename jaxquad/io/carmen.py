@@ -20,10 +20,12 @@ robot pose); ODOM lines are kept as the log's odometry stream (`odom_t`, `odom_x
 upper-case tag (PARAM, SYNC, TRUEPOS, RAWLASER1-4, RLASER, ...) is skipped; anything else is an
 error naming the file and line.
 
-Real logs are not always in time order: the scans are taken in the file's order, each keeping its own
-`ipc_timestamp` even where it is earlier than the scan before (clock jitter, or a log rewritten by a
-SLAM program); the SLAM's clock holds the latest stamp seen (`scan_clock`). ODOM lines out of time
-order (e.g. the `ODOM ... 0 host 0` lines of corrected logs) are dropped.
+Real logs are not always in time order (clock jitter, a stray stamp, a log rewritten by a SLAM program
+such as the `ODOM ... 0 host 0` lines of corrected logs). The stamps in order are the longest
+non-decreasing run of them (`in_time_order`), so that one stray stamp, early or late, is the one left
+out. The scans are taken in the file's order, each keeping its own `ipc_timestamp`; a scan whose stamp
+is out of order gets the SLAM's clock of the scan before it (`scan_clock`). ODOM lines out of order
+are dropped.
 
 `.npz` laser log (float64 arrays):
 
@@ -41,6 +43,7 @@ order (e.g. the `ODOM ... 0 host 0` lines of corrected logs) are dropped.
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import gzip
 import math
@@ -198,11 +201,11 @@ def read_carmen(path: str | os.PathLike, flaser_fov_deg: float = 180.0) -> Laser
     scan_t = np.array([row[0] for row in rows])
     scan_odom = np.array([row[2] for row in rows], np.float64)
     if odom:
-        odom_t = np.array([o[0] for o in odom])
-        keep = odom_t >= np.maximum.accumulate(odom_t)  # in time order: not earlier than any line before
-        odom_t, odom_xy = odom_t[keep], np.array([o[1] for o in odom])[keep]
+        odom_t, odom_xy = np.array([o[0] for o in odom]), np.array([o[1] for o in odom])
     else:
         odom_t, odom_xy = scan_t, scan_odom
+    keep = in_time_order(odom_t)
+    odom_t, odom_xy = odom_t[keep], odom_xy[keep]
     offset = np.zeros(3) if rows[0][4] is None else _base_laser(rows[0][2], rows[0][4])
     try:
         return LaserLog(
@@ -234,9 +237,35 @@ def save_laser_npz(path: str | os.PathLike, log: LaserLog) -> Path:
     return Path(path)
 
 
+def in_time_order(t: np.ndarray) -> np.ndarray:
+    """Boolean mask of the longest non-decreasing subsequence of stamps `t` (the first such, O(n log n))."""
+    t = np.asarray(t, np.float64)
+    tails, tail_idx, prev = [], [], np.full(t.size, -1)
+    for i, v in enumerate(t):
+        k = bisect.bisect_right(tails, v)
+        if k == len(tails):
+            tails.append(v)
+            tail_idx.append(i)
+        else:
+            tails[k], tail_idx[k] = v, i
+        prev[i] = tail_idx[k - 1] if k else -1
+    keep = np.zeros(t.size, bool)
+    i = tail_idx[-1] if tail_idx else -1
+    while i >= 0:
+        keep[i] = True
+        i = prev[i]
+    return keep
+
+
 def scan_clock(scan_t: np.ndarray) -> np.ndarray:
-    """The SLAM's clock at each scan: the latest stamp so far (stamps that go back hold it)."""
-    return np.maximum.accumulate(np.asarray(scan_t, np.float64))
+    """The SLAM's clock at each scan: its stamp where the stamps are in order (`in_time_order`), else the
+    clock of the scan before (the first in-order stamp before any)."""
+    t = np.asarray(scan_t, np.float64)
+    keep = in_time_order(t)
+    if not keep.any():
+        return t
+    held = np.maximum.accumulate(np.where(keep, t, -np.inf))
+    return np.where(np.isfinite(held), held, t[keep][0])
 
 
 def load_laser_log(path: str | os.PathLike, flaser_fov_deg: float = 180.0) -> LaserLog:

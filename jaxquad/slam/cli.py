@@ -200,6 +200,7 @@ def run(args: argparse.Namespace) -> int:
     from jaxquad import parallel
     from jaxquad.cli import progress_bar
     from jaxquad.io import atomic_dir, check_output_dir, to_json, write_json
+    from jaxquad.io.carmen import in_time_order
     from jaxquad.slam import report
     from jaxquad.slam.params import DEFAULTS_FILE, LASER_FILE, load_params, slam_config
     from jaxquad.slam.run import final_poses, map_grid, nodes_needed, run_fleet
@@ -240,10 +241,11 @@ def run(args: argparse.Namespace) -> int:
         "odometry": args.odometry if fmt == "robot" else "log",
         "vo_leg_odometry": args.vo_leg_odometry if fmt == "robot" and args.odometry == "vo" else None,
         "lo_constraints": lo_constraints,
-        "params_defaults": str(LASER_FILE if laser else DEFAULTS_FILE),
+        "params_defaults": [str(DEFAULTS_FILE)] + ([str(LASER_FILE)] if laser else []),  # in order
         "params_file": None if args.params is None else str(args.params),
         "params": values,
-        "stamps_earlier_than_previous": int((np.diff(stamp) < 0).sum()),  # kept as stamped (jaxquad.io.carmen)
+        # Scans whose stamp is out of time order (they keep it in the files; jaxquad.io.carmen).
+        "scans_out_of_time_order": int((~in_time_order(stamp)).sum()),
         "grid": {k: getattr(grid, k) for k in ("rows", "cols", "resolution", "origin_x", "origin_y", "max_range")},
         "robots": [],
     }

@@ -2,6 +2,7 @@
 
   trajectory.tum        each scan's base pose as the online SLAM estimated it at that scan (z = 0)
   trajectory_final.tum  each scan's base pose after the last optimization, stamped with the scan's time
+                        (both in time order, one pose per stamp: `tum_of`)
   map.pgm, map.yaml     the occupancy map at the final node poses (map_server format)
   graph.g2o             the final pose graph: nodes (base poses) and edges (matches, leg odometry, loops)
   map_vs_truth.png      with a true map: the map beside it, walls overlaid, and the trajectories

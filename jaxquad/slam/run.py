@@ -96,19 +96,31 @@ def _inputs(x: dict, start: int, stop: int, size: int, t0: float) -> online.Slam
 
 
 def nodes_needed(params: online.SlamParams, x: dict) -> int:
-    """The most nodes any robot's scans add (`online.count_nodes`): the node capacity that never fills."""
-    S = x["odom"].shape[1]
+    """The most nodes any robot's scans add (`online.count_nodes`): the node capacity that never fills.
+    Each scan goes in as one beam (valid where any of its beams is), which is all the node rule reads."""
+    n, S = x["odom"].shape[:2]
+    seen = np.any(x["valid"][..., None] & ~np.isnan(x["ranges"]), axis=-1)  # (N, S)
     t = np.asarray(x["t"], np.float64)
-    t0 = _clock_origin(t)
-    count = jax.jit(jax.vmap(online.count_nodes, in_axes=(None, 0)))
-    return int(np.max(count(params, _inputs(x, 0, S, S, t0))))
+    f = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+    inputs = online.SlamInputs(
+        t=f(np.broadcast_to(t - _clock_origin(t), (n, S))),
+        odom=f(x["odom"]),
+        ranges=f(np.where(seen, 1.0, np.nan)[..., None]),
+        valid=jnp.asarray(seen[..., None]),
+        lo_pose=f(np.zeros((n, S, 3))),
+        lo_twist=f(np.zeros((n, S, 3))),
+        lo_twist_cov=f(np.zeros((n, S, 3, 3))),
+        lo_valid=jnp.zeros((n, S), bool),
+    )
+    return int(np.max(jax.jit(jax.vmap(online.count_nodes, in_axes=(None, 0)))(params, inputs)))
 
 
 def _clock_origin(t: np.ndarray) -> float:
-    """Whole thousands of seconds taken off the stamps before they go to float32 (a log's Unix stamps,
-    ~1.7e9 s, would round to 128 s), so that the node clock's slots stay where they were (0 for
-    simulated logs)."""
-    return float(1000.0 * np.floor(np.nanmin(t) / 1000.0)) if np.any(np.isfinite(t)) else 0.0
+    """Whole thousands of seconds (below the median stamp: a stray stamp does not move it) taken off the
+    stamps before they go to float32, where a log's Unix stamps (~1.7e9 s) would round to 128 s. Whole
+    thousands keep the node clock's slots where they were for intervals that divide 1000 s (the default
+    0.5 s), and take nothing off a simulated log's stamps (under 1000 s)."""
+    return float(1000.0 * np.floor(np.nanmedian(t) / 1000.0)) if np.any(np.isfinite(t)) else 0.0
 
 
 @functools.cache
