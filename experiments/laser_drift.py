@@ -36,12 +36,14 @@ def drifted_odometry(ref, scale: float, rot_scale: float, heading_drift: float, 
     of the module docstring."""
     from jaxquad.kernels.lie import se2, xy_theta
 
-    ref = jnp.asarray(ref, jnp.float64 if jax.config.jax_enable_x64 else jnp.float32)
+    ref = jnp.asarray(ref)
     steps = np.asarray(xy_theta(se2(ref[:-1]).inverse() @ se2(ref[1:])), np.float64)
     d = np.hypot(steps[:, 0], steps[:, 1])
     std = np.stack([0.005 * d + 1e-4, 0.005 * d + 1e-4, 0.002 * d + 0.002 * np.abs(steps[:, 2]) + 1e-4], 1)
     noise = np.random.default_rng(seed).normal(size=steps.shape) * std
-    bad = steps * [1 + scale, 1 + scale, 1 + rot_scale] + np.stack([0 * d, 0 * d, heading_drift * d], 1) + noise
+    bad = steps * [1 + scale, 1 + scale, 1 + rot_scale]
+    bad[:, 2] += heading_drift * d
+    bad += noise
 
     def step(T, delta):
         T = T @ se2(delta)

@@ -98,20 +98,10 @@ def _inputs(x: dict, start: int, stop: int, size: int, t0: float) -> online.Slam
 def nodes_needed(params: online.SlamParams, x: dict) -> int:
     """The most nodes any robot's scans add (`online.count_nodes`): the node capacity that never fills.
     Each scan goes in as one beam (valid where any of its beams is), which is all the node rule reads."""
-    n, S = x["odom"].shape[:2]
-    seen = np.any(x["valid"][..., None] & ~np.isnan(x["ranges"]), axis=-1)  # (N, S)
-    t = np.asarray(x["t"], np.float64)
-    f = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
-    inputs = online.SlamInputs(
-        t=f(np.broadcast_to(t - _clock_origin(t), (n, S))),
-        odom=f(x["odom"]),
-        ranges=f(np.where(seen, 1.0, np.nan)[..., None]),
-        valid=jnp.asarray(seen[..., None]),
-        lo_pose=f(np.zeros((n, S, 3))),
-        lo_twist=f(np.zeros((n, S, 3))),
-        lo_twist_cov=f(np.zeros((n, S, 3, 3))),
-        lo_valid=jnp.zeros((n, S), bool),
-    )
+    S = x["odom"].shape[1]
+    seen = np.any(x["valid"][..., None] & ~np.isnan(x["ranges"]), axis=-1, keepdims=True)  # (N, S, 1)
+    one_beam = {**x, "ranges": np.where(seen, 1.0, np.nan)}
+    inputs = _inputs(one_beam, 0, S, S, _clock_origin(np.asarray(x["t"], np.float64)))
     return int(np.max(jax.jit(jax.vmap(online.count_nodes, in_axes=(None, 0)))(params, inputs)))
 
 
