@@ -100,7 +100,13 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, required=True, help="folder for the drifted logs and the SLAM outputs")
     p.add_argument("--json", type=Path, default=None, help="write the rows here")
     args = p.parse_args(argv)
-    args.out.mkdir(parents=True, exist_ok=True)
+    missing = [str(log) for log in args.logs if not log.is_file()]
+    if missing:
+        p.error(f"log not found: {', '.join(missing)}")
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        p.error(f"--out {args.out}: {e.strerror}")
     print(f"command: python experiments/laser_drift.py {shlex.join(sys.argv[1:] if argv is None else argv)}")
     print(
         f"machine: {platform.node()}, {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
