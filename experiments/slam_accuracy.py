@@ -14,7 +14,10 @@ of the odometry alone, of the online SLAM pose at each scan and of the final (af
 optimization) trajectory; occupied-cell IoU, precision and recall of the final map against the true
 map (`jaxquad.metrics.map_scores`: recall counts every visible wall of the world, also those never in
 view; the in-view IoU only the walls an ideal laser on the true path faced,
-`jaxquad.metrics.cells_in_view`); loop closures per robot; the SLAM's wall time. With --throughput
+`jaxquad.metrics.cells_in_view`); loop closures per robot; the SLAM's wall time. A second table scores
+the graphs' edges at the true node poses, pooled over the fleet (`jaxquad.slam.report.edge_errors`): per
+edge kind the rms error (x, y, heading), the mean chi-square against the edges' information (3 when
+calibrated) and the edges off by more than 0.3 m. With --throughput
 B...: the real-time factor (scan time span / wall time, compile apart) of B robots' online SLAM in one
 jitted vmapped run (the fleet's robots repeated), split over each
 device count of --devices in turn; robot-s per s = B x span / wall, the robots it keeps in real time.
@@ -36,7 +39,7 @@ def _stats(vals) -> str:
     return f"{vals.mean():.3f} +- {vals.std():.3f}" if vals.size else "-"
 
 
-def _cell(args, robot: str, world: str, rows: list, json_rows: list) -> dict:
+def _cell(args, robot: str, world: str, rows: list, json_rows: list, edge_rows: list) -> dict:
     from jaxquad.estimate.laser import every_nth_frame, laser_inputs
     from jaxquad.sim.fleet import FleetConfig
     from jaxquad.sim.rollout import rollout
@@ -91,8 +94,27 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list) -> dict:
             f"{_stats(ms('recall'))} | {np.mean([r['loop_closures'] for r in reps]):.1f} | {wall:.1f} |"
         )
         json_rows.append({"robot": robot, "world": world, "lo_constraints": lo, "wall_s": wall, "robots": reps})
+        edge_rows += _edge_rows(robot, world, lo, reps)
         print(rows[-1], file=sys.stderr)
     return {"x": x, "grid": grid, "values": values}
+
+
+def _edge_rows(robot: str, world: str, lo: str, reps: list[dict]) -> list[str]:
+    """Markdown rows of the edge errors pooled over robots (rms and chi-square weighted by edge counts)."""
+    rows = []
+    for kind in ("match", "odometry", "leg_odometry", "loop"):
+        per = [r["edge_errors"][kind] for r in reps if (r.get("edge_errors") or {}).get(kind)]
+        if not per:
+            continue
+        n = np.array([p["n"] for p in per], float)
+        weighted = lambda key, per=per, n=n: np.sum(n * np.array([p[key] for p in per])) / n.sum()  # noqa: E731
+        squares = lambda key, per=per, n=n: np.sum(n * np.array([p[key] for p in per]) ** 2) / n.sum()  # noqa: E731
+        rms = [np.sqrt(squares(k)) for k in ("rms_x_m", "rms_y_m", "rms_theta_rad")]
+        rows.append(
+            f"| {robot} | {world} | {lo} | {kind} | {int(n.sum())} | {100 * rms[0]:.1f} / {100 * rms[1]:.1f} | "
+            f"{np.degrees(rms[2]):.2f} | {weighted('chi2_mean'):.2f} | {sum(p['off'] for p in per)} |"
+        )
+    return rows
 
 
 def _throughput(cell: dict, batches, devices, rows: list) -> None:
@@ -166,11 +188,17 @@ def main() -> None:
         "precision | recall | loops/robot | SLAM wall s |",
         "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
+    edges = [
+        "| robot | world | LO constraints | edges | count | rms error x / y cm | rms heading deg | chi-square mean | "
+        "off > 0.3 m |",
+        "|---|---|---|---|---:|---|---:|---:|---:|",
+    ]
     json_rows, cell = [], None
     for robot in args.robot:
         for world in args.world:
-            cell = _cell(args, robot, world, rows, json_rows)
+            cell = _cell(args, robot, world, rows, json_rows, edges)
     print("\n".join(rows))
+    print("\n" + "\n".join(edges))
     if args.throughput:
         speed = [
             "| robots | devices | scans | scan span s | compile s | run s | real-time factor | robot-s per s |",

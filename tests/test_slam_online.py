@@ -214,6 +214,10 @@ def test_cli_on_a_laser_npz_with_truth_and_a_carmen_log(tmp_path, capsys):
     # The log adds more nodes than the params file's 32 slots: the capacity grew to hold them all.
     assert r["nodes"] > 32 and not r["capacity_reached"] and r["node_capacity"] % 256 == 0
     assert r["scores"]["final"]["ate"]["rmse"] < 0.1 * r["scores"]["odometry"]["ate"]["rmse"]
+    # The edges against the true node poses: every edge scored, the matches and closures within centimetres.
+    ee = r["edge_errors"]
+    assert {k: v["n"] for k, v in ee.items()} == {k: v for k, v in r["edges"].items() if v}
+    assert ee["loop"]["off"] == 0 and ee["match"]["off"] == 0
     final = read_tum(tmp_path / "a" / "trajectory_final.tum")
     np.testing.assert_allclose(final.t_s, log.scan_t, rtol=0, atol=1e-6)  # every scan, stamped with its own time
     for f in ("trajectory.tum", "map.pgm", "map.yaml", "graph.g2o"):

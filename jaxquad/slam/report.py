@@ -10,19 +10,22 @@
 Scores (with ground truth): ATE/ARE/APE/RPE and segment drift of the online, final and odometry-only
 trajectories against the truth (evo's definitions, SE(3) Umeyama alignment, 2D poses at z = 0), and
 the final map's scores against the true map (`jaxquad.metrics.map_scores`; with the truth path, also
-in view: the walls an ideal laser at the true laser poses first hits, out to the map's range).
+in view: the walls an ideal laser at the true laser poses first hits, out to the map's range), and each
+edge kind's error at the true node poses against its information (`edge_errors`).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxquad.io import G2oGraph, TumTrajectory, save_map, write_g2o, write_tum
 from jaxquad.kernels.lie import se2, xy_theta
 from jaxquad.kernels.occupancy import GridSpec
+from jaxquad.kernels.posegraph import edge_error
 from jaxquad.slam import online
 from jaxquad.slam.mapping import to_occupancy_map
 
@@ -63,6 +66,43 @@ def graph_of(state) -> G2oGraph:
         measurement=np.asarray(g.measurement[:m], np.float64)[keep],
         information=np.asarray(g.information[:m], np.float64)[keep],
     )
+
+
+OFF_M = 0.3  # an edge whose translation error exceeds this counts as off
+
+
+def edge_errors(state, out, gt: np.ndarray) -> dict | None:
+    """Each edge kind's error at the true node poses: g2o's edge error (`kernels.posegraph.edge_error`) with
+    the nodes at the truth of their scans, so 0 for a perfect measurement. Per kind: `n` edges, the rms of
+    the error's x, y (m) and heading (rad), `chi2_mean` (e^T Omega e averaged; 3 when the information
+    matches the errors, less when it is cautious, more when it is overconfident) and `off` (edges whose
+    translation error exceeds `OFF_M`). `gt` (S, 3) is the truth at every scan; None when a node's scan
+    has no finite truth."""
+    n, m = int(state.n_nodes), int(state.n_edges)
+    node_scan = np.flatnonzero(np.asarray(out.added, bool))
+    if node_scan.size != n or not np.all(np.isfinite(gt[node_scan])):
+        return None
+    g = state.graph
+    keep = np.asarray(g.edge_mask[:m], bool)
+    kinds = np.asarray(state.edge_kind[:m])[keep]
+    truth = jnp.asarray(gt[node_scan], jnp.float32)
+    ei, ej = np.asarray(g.edge_i[:m])[keep], np.asarray(g.edge_j[:m])[keep]
+    e = np.asarray(jax.vmap(edge_error)(truth[ei], truth[ej], jnp.asarray(g.measurement[:m])[keep]), np.float64)
+    chi2 = np.einsum("ma,mab,mb->m", e, np.asarray(g.information[:m], np.float64)[keep], e)
+    rows = {}
+    for kind, name in EDGE_KIND_NAMES.items():
+        k = kinds == kind
+        if k.any():
+            rms = np.sqrt(np.mean(e[k] ** 2, axis=0))
+            rows[name] = {
+                "n": int(k.sum()),
+                "rms_x_m": float(rms[0]),
+                "rms_y_m": float(rms[1]),
+                "rms_theta_rad": float(rms[2]),
+                "chi2_mean": float(chi2[k].mean()),
+                "off": int((np.hypot(e[k, 0], e[k, 1]) > OFF_M).sum()),
+            }
+    return rows
 
 
 def _trajectory_scores(t: np.ndarray, pose: np.ndarray, gt: np.ndarray, valid: np.ndarray) -> dict:
@@ -111,6 +151,7 @@ def robot_report(
             "final": _trajectory_scores(t, final, gt, valid),
             "odometry": _trajectory_scores(t, x["odom"][i], gt, valid),
         }
+        rep["edge_errors"] = edge_errors(state, out, gt)
     if true_map is not None:
         from dataclasses import asdict
 
@@ -136,8 +177,6 @@ def truth_in_view(x: dict, i: int, true_map, range_max: float):
 
 def robot_slice(tree, i: int):
     """Robot i's arrays of a fleet pytree."""
-    import jax
-
     return jax.tree.map(lambda a: a[i], tree)
 
 
