@@ -100,7 +100,8 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list, edge_rows: 
 
 
 def _edge_rows(robot: str, world: str, lo: str, reps: list[dict]) -> list[str]:
-    """Markdown rows of the edge errors pooled over robots (rms and chi-square weighted by edge counts)."""
+    """Markdown rows of the edge errors pooled over the robots that have them (rms and chi-square weighted by
+    edge counts); `robots` says how many (a robot without truth at every node is not scored)."""
     rows = []
     for kind in ("match", "odometry", "leg_odometry", "loop"):
         per = [r["edge_errors"][kind] for r in reps if (r.get("edge_errors") or {}).get(kind)]
@@ -111,8 +112,9 @@ def _edge_rows(robot: str, world: str, lo: str, reps: list[dict]) -> list[str]:
         squares = lambda key, per=per, n=n: np.sum(n * np.array([p[key] for p in per]) ** 2) / n.sum()  # noqa: E731
         rms = [np.sqrt(squares(k)) for k in ("rms_x_m", "rms_y_m", "rms_theta_rad")]
         rows.append(
-            f"| {robot} | {world} | {lo} | {kind} | {int(n.sum())} | {100 * rms[0]:.1f} / {100 * rms[1]:.1f} | "
-            f"{np.degrees(rms[2]):.2f} | {weighted('chi2_mean'):.2f} | {sum(p['off'] for p in per)} |"
+            f"| {robot} | {world} | {lo} | {kind} | {len(per)} | {int(n.sum())} | "
+            f"{100 * rms[0]:.1f} / {100 * rms[1]:.1f} | {np.degrees(rms[2]):.2f} | {weighted('chi2_mean'):.2f} | "
+            f"{sum(p['off'] for p in per)} |"
         )
     return rows
 
@@ -189,9 +191,9 @@ def main() -> None:
         "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     edges = [
-        "| robot | world | LO constraints | edges | count | rms error x / y cm | rms heading deg | chi-square mean | "
-        "off > 0.3 m |",
-        "|---|---|---|---|---:|---|---:|---:|---:|",
+        "| robot | world | LO constraints | edges | robots | count | rms error x / y cm | rms heading deg | "
+        "chi-square mean | off > 0.3 m |",
+        "|---|---|---|---|---:|---:|---|---:|---:|---:|",
     ]
     json_rows, cell = [], None
     for robot in args.robot:

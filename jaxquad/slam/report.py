@@ -109,7 +109,7 @@ def _trajectory_scores(t: np.ndarray, pose: np.ndarray, gt: np.ndarray, valid: n
     from jaxquad.estimate.run import trajectory_metrics
 
     # Scans that do not advance the clock (a laser log's stamps that went back) are not scored.
-    ok = valid & np.all(np.isfinite(pose), axis=1) & np.r_[True, np.diff(t) > 0]
+    ok = valid & np.all(np.isfinite(pose), axis=1) & np.all(np.isfinite(gt), axis=1) & np.r_[True, np.diff(t) > 0]
     if ok.sum() < 3:
         return {"error": f"only {int(ok.sum())} scans have a pose"}
     z = np.zeros((len(t), 1))

@@ -1,4 +1,5 @@
-"""`jaxquad.slam.report.edge_errors`: measurements perturbed by known amounts, scored against closed forms."""
+"""`jaxquad.slam.report`: edge errors of measurements perturbed by known amounts, against closed forms; trajectory
+scores of a log with scans that have no truth."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from jaxquad.slam.online import EDGE_LEG, EDGE_LOOP, EDGE_MATCH
-from jaxquad.slam.report import edge_errors
+from jaxquad.slam.report import _trajectory_scores, edge_errors
 
 
 def _se2(p):
@@ -67,5 +68,16 @@ def test_no_scores_without_truth_at_every_node():
     state, out, gt = _state(TRUTH, [(0, 1, np.zeros(3), INFO, EDGE_MATCH)])
     gt[3] = np.nan
     assert edge_errors(state, out, gt) is None
-    out.added[5] = True  # more node scans than nodes: the nodes cannot be placed
-    assert edge_errors(state, out, _state(TRUTH, [])[2]) is None
+    gt = _state(TRUTH, [])[2]
+    gt[5] = 0.0  # finite truth at every scan, but more node scans than nodes: the nodes cannot be placed
+    out.added[5] = True
+    assert edge_errors(state, out, gt) is None
+
+
+def test_scans_without_truth_are_left_out_of_the_scores():
+    t = np.arange(60) * 0.1
+    gt = np.stack([np.cos(0.3 * t), np.sin(0.3 * t), 0.3 * t + np.pi / 2], 1)
+    pose = gt + np.array([0.05, 0.0, 0.0])  # a constant offset: aligned away, ATE ~ 0
+    gt[[10, 11]] = np.nan
+    scores = _trajectory_scores(t, pose, gt, np.ones(60, bool))
+    assert scores["scans_scored"] == 58 and scores["ate"]["rmse"] < 1e-3
