@@ -7,10 +7,13 @@ std, 10th and 90th percentiles over the runs; the final coverage, the share of r
 the occupied-cell IoU of the final maps, outcome counts (explored, collided, lost, fallen) and
 speed. It prints the rows as JSON (`--json` also writes them) and a Markdown table, and draws
 `coverage_vs_time.png` in `--figures` (mean and 10-90 % band per variant; a panel per robot and world).
+`--traces DIR` also keeps every run's path and writes `<robot>_<world>_<variant>.npz` per cell (times,
+SLAM position error, true and SLAM poses, outcomes, loop closures): `experiments/exploration_errors.py`
+draws the SLAM's error over time from it.
 
     python experiments/exploration.py [--runs 100] [--robots go2 badger] [--worlds house warehouse]
         [--variants baseline full] [--seconds T] [--seed 0] [--samples 256] [--horizon 30]
-        [--json rows.json] [--figures DIR]
+        [--json rows.json] [--figures DIR] [--traces DIR]
 
 Without `--seconds` each world runs its target time: 600 s in the house, 900 s in the warehouse.
 """
@@ -47,12 +50,14 @@ def run_cell(args, robot: str, world: str, variant: str) -> dict:
         horizon=args.horizon,
         band_height=args.band_height,
         band_reduce=args.band_reduce,
-        trace_robots=4,
+        trace_robots=args.runs if args.traces else 4,
         devices=args.devices,
     )
     t0 = time.perf_counter()
     result = explore(cfg)
     print(f"{robot} {world} {variant}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+    if args.traces:
+        save_traces(Path(args.traces) / f"{robot}_{world}_{variant}.npz", result)
     summary = summarize(result, args.every)
     times, cov = coverage_samples(result, args.every)
     final = np.asarray(summary["coverage"]["per_robot"])
@@ -80,6 +85,19 @@ def run_cell(args, robot: str, world: str, variant: str) -> dict:
         "devices": args.devices or jax.local_device_count(),
         "robot_seconds_per_s": summary["timing"]["robot_seconds_per_s"],
     }
+
+
+def save_traces(path: Path, result) -> None:
+    """Every run's traces of one cell (arrays of `ExploreResult`; the cell's settings as 0-d strings and numbers)."""
+    from jaxquad.io.atomic import atomic_open
+
+    cfg = result.config
+    keep = ("t", "error", "active", "coverage", "outcome", "end_t", "distance", "nodes", "loops", "starts")
+    arrays = {k: np.asarray(getattr(result, k)) for k in keep}
+    arrays |= {"true_pose": result.true_pose, "pose": result.pose, "robot": cfg.robot, "world": cfg.world}
+    arrays |= {"variant": cfg.variant, "seed": cfg.seed}
+    with atomic_open(path, "wb") as f:
+        np.savez_compressed(f, **arrays)
 
 
 def _time_to(times: np.ndarray, cov: np.ndarray, level: float) -> float | None:
@@ -148,6 +166,7 @@ def main() -> int:
     )
     p.add_argument("--json", default=None, help="write the rows as JSON here (default: stdout only)")
     p.add_argument("--figures", default=None, help="folder for coverage_vs_time.png (default: none)")
+    p.add_argument("--traces", default=None, help="folder for every run's traces, an .npz per cell (default: none)")
     args = p.parse_args()
     if min(args.runs, args.band_height) < 1 or not (args.seconds is None or args.seconds > 0) or not args.every > 0:
         p.error("--runs and --band-height must be >= 1 and --seconds, --every positive")
@@ -156,8 +175,10 @@ def main() -> int:
 
     if args.json:
         check_output_file(args.json, "--json")
-    if args.figures:
-        check_output_dir(args.figures, "--figures", kind=None)
+    for flag, folder in (("--figures", args.figures), ("--traces", args.traces)):
+        if folder:
+            check_output_dir(folder, flag, kind=None)
+            Path(folder).mkdir(parents=True, exist_ok=True)
 
     import jax
 
@@ -183,9 +204,7 @@ def main() -> int:
     if args.json:
         atomic_write_text(args.json, text + "\n")
     if args.figures:
-        folder = Path(args.figures)
-        folder.mkdir(parents=True, exist_ok=True)
-        print(f"figure: {plot(rows, folder)}", file=sys.stderr)
+        print(f"figure: {plot(rows, Path(args.figures))}", file=sys.stderr)
     return 0
 
 

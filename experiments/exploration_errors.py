@@ -1,0 +1,137 @@
+"""The SLAM's error over time in exploration runs: lost runs against the others, beside the heading drift of
+the simulated IMU's reported yaw.
+
+    python experiments/exploration.py --runs 100 --robots go2 --worlds warehouse --variants full --seconds 240 \
+        --traces traces/
+    python experiments/exploration_errors.py traces/go2_warehouse_full.npz --out errors.png
+
+Two panels: the SLAM position error (m) and the absolute heading error (deg) of every run against time,
+the runs that ended `lost` in red, the others grey, with the median over the runs still active; the
+heading panel adds the median absolute value of the reported yaw's random walk (`sim.sensors`'
+`yaw_walk`: 0.6745 x yaw_walk x sqrt(t)), which the leg odometry's heading follows. It prints, as JSON,
+the medians at each whole minute and per lost run its end time, its largest one-tick change of error
+and its final heading error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+MEDIAN_ABS = 0.6745  # median of |N(0, 1)|
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def load(path: Path) -> dict:
+    """A traces file of `exploration.py --traces`; a one-line error for anything else."""
+    need = ("t", "error", "active", "outcome", "end_t", "pose", "true_pose")
+    try:
+        with np.load(path) as z:
+            d = {k: z[k] for k in z.files}
+    except (OSError, ValueError) as e:
+        raise SystemExit(f"exploration_errors: cannot read {path}: {e}") from None
+    missing = [k for k in need if k not in d]
+    if missing:
+        raise SystemExit(
+            f"exploration_errors: {path} lacks {', '.join(missing)} (write it with exploration.py --traces)"
+        )
+    if d["pose"].shape[1] != d["error"].shape[1]:
+        raise SystemExit(f"exploration_errors: {path} keeps the paths of {d['pose'].shape[1]} of "
+                         f"{d['error'].shape[1]} runs; --traces keeps them all")  # fmt: skip
+    return d
+
+
+def summarize(d: dict, yaw_walk: float) -> dict:
+    from jaxquad.explore import OUTCOMES
+
+    t, err, active = d["t"], d["error"], d["active"].astype(bool)
+    heading = np.degrees(np.abs(_wrap(d["pose"][..., 2] - d["true_pose"][..., 2])))
+    lost = np.flatnonzero(d["outcome"] == OUTCOMES.index("lost"))
+    minutes = []
+    tick = float(t[1] - t[0]) if len(t) > 1 else 0.0
+    for m in range(1, int((t[-1] + tick) // 60) + 1):  # the last sample is a tick before the run's end
+        k = min(np.searchsorted(t, 60.0 * m), len(t) - 1)
+        a = active[k]
+        minutes.append({
+            "t_s": 60.0 * m,
+            "active_runs": int(a.sum()),
+            "position_error_median_m": float(np.median(err[k, a])) if a.any() else None,
+            "heading_error_median_deg": float(np.median(heading[k, a])) if a.any() else None,
+            "imu_yaw_walk_median_deg": float(np.degrees(MEDIAN_ABS * yaw_walk * np.sqrt(60.0 * m))),
+        })  # fmt: skip
+    runs = []
+    for i in lost:
+        k = max(int(np.searchsorted(t, d["end_t"][i])) - 1, 1)
+        runs.append({
+            "run": int(i),
+            "end_s": float(d["end_t"][i]),
+            "largest_tick_change_m": float(np.max(np.abs(np.diff(err[: k + 1, i])))),
+            "final_heading_error_deg": float(heading[k, i]),
+        })  # fmt: skip
+    return {"runs": int(err.shape[1]), "lost": len(runs), "per_minute": minutes, "lost_runs": runs}
+
+
+def plot(d: dict, yaw_walk: float, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jaxquad.explore import OUTCOMES
+    from jaxquad.io.atomic import atomic_open
+
+    t, active = d["t"], d["active"].astype(bool)
+    err = np.where(active, d["error"], np.nan)
+    heading = np.where(active, np.degrees(np.abs(_wrap(d["pose"][..., 2] - d["true_pose"][..., 2]))), np.nan)
+    lost = d["outcome"] == OUTCOMES.index("lost")
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), constrained_layout=True)
+    for ax, y, label in ((axes[0], err, "SLAM position error (m)"), (axes[1], heading, "SLAM heading error (deg)")):
+        ax.plot(t / 60, y[:, ~lost], color="0.75", lw=0.5)
+        ax.plot(t / 60, y[:, lost], color="tab:red", lw=0.7)
+        with np.errstate(all="ignore"):
+            ax.plot(t / 60, np.nanmedian(y, axis=1), color="k", lw=2, label="median of the active runs")
+        ax.set_xlabel("time (min)")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].axhline(0.5, color="tab:red", ls=":", lw=1, label="lost above this for 2 s")
+    axes[1].plot(t / 60, np.degrees(MEDIAN_ABS * yaw_walk * np.sqrt(t)), color="tab:blue", lw=2, ls="--",
+                 label="median of the IMU yaw's random walk")  # fmt: skip
+    axes[1].set_ylim(0, min(15.0, float(np.nanmax(heading)) + 1))
+    for ax in axes:
+        ax.plot([], [], color="tab:red", lw=0.7, label=f"lost runs ({int(lost.sum())})")
+        ax.plot([], [], color="0.75", lw=0.5, label=f"other runs ({int((~lost).sum())})")
+        ax.legend(fontsize=7, loc="upper left")
+    title = " ".join(str(d[k]) for k in ("robot", "world", "variant") if k in d)
+    fig.suptitle(f"exploration {title}".strip(), fontsize=9)
+    with atomic_open(path, "wb") as f:
+        fig.savefig(f, format="png", dpi=80)
+    plt.close(fig)
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("traces", type=Path, help="a cell's traces, from exploration.py --traces")
+    p.add_argument("--out", type=Path, default=None, help="the figure (.png; default: none)")
+    args = p.parse_args()
+    if args.out is not None and not args.out.parent.is_dir():
+        p.error(f"--out: folder {args.out.parent} does not exist")
+    from jaxquad.sim.sensors import SensorNoise
+
+    yaw_walk = float(SensorNoise.default().yaw_walk)
+    d = load(args.traces)
+    print(json.dumps(summarize(d, yaw_walk), indent=1))
+    if args.out is not None:
+        plot(d, yaw_walk, args.out)
+        print(f"figure: {args.out}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
