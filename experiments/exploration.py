@@ -173,12 +173,15 @@ def main() -> int:
     from jaxquad.io.atomic import atomic_write_text, check_output_dir, check_output_file
     from jaxquad.io.jsonfile import to_json
 
-    if args.json:
-        check_output_file(args.json, "--json")
-    for flag, folder in (("--figures", args.figures), ("--traces", args.traces)):
-        if folder:
-            check_output_dir(folder, flag, kind=None)
-            Path(folder).mkdir(parents=True, exist_ok=True)
+    try:  # the outputs checked before any work: one-line errors
+        if args.json:
+            check_output_file(args.json, "--json")
+        for flag, folder in (("--figures", args.figures), ("--traces", args.traces)):
+            if folder:
+                check_output_dir(folder, flag, kind=None)
+                Path(folder).mkdir(parents=True, exist_ok=True)
+    except (ValueError, OSError) as e:
+        p.error(str(e))
 
     import jax
 
