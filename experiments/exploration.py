@@ -95,7 +95,8 @@ def save_traces(path: Path, result) -> None:
     keep = ("t", "error", "active", "coverage", "outcome", "end_t", "distance", "nodes", "loops", "starts")
     arrays = {k: np.asarray(getattr(result, k)) for k in keep}
     arrays |= {"true_pose": result.true_pose, "pose": result.pose, "robot": cfg.robot, "world": cfg.world}
-    arrays |= {"variant": cfg.variant, "seed": cfg.seed}
+    arrays |= {"variant": cfg.variant, "seed": cfg.seed, "randomize": cfg.randomize}
+    path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_open(path, "wb") as f:
         np.savez_compressed(f, **arrays)
 
@@ -179,7 +180,6 @@ def main() -> int:
         for flag, folder in (("--figures", args.figures), ("--traces", args.traces)):
             if folder:
                 check_output_dir(folder, flag, kind=None)
-                Path(folder).mkdir(parents=True, exist_ok=True)
     except (ValueError, OSError) as e:
         p.error(str(e))
 
@@ -207,6 +207,7 @@ def main() -> int:
     if args.json:
         atomic_write_text(args.json, text + "\n")
     if args.figures:
+        Path(args.figures).mkdir(parents=True, exist_ok=True)
         print(f"figure: {plot(rows, Path(args.figures))}", file=sys.stderr)
     return 0
 

@@ -22,8 +22,6 @@ from pathlib import Path
 
 import numpy as np
 
-MEDIAN_ABS = 0.6745  # median of |N(0, 1)|
-
 
 def _wrap(a: np.ndarray) -> np.ndarray:
     return (a + np.pi) % (2 * np.pi) - np.pi
@@ -35,47 +33,69 @@ def load(path: Path) -> dict:
     try:
         with np.load(path) as z:
             d = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as e:
-        raise SystemExit(f"exploration_errors: cannot read {path}: {e}") from None
+    except (OSError, ValueError, TypeError, AttributeError) as e:  # a missing file, not an .npz, a bare .npy
+        raise SystemExit(f"exploration_errors: cannot read {path} as an .npz: {e}") from None
     missing = [k for k in need if k not in d]
     if missing:
+        raise SystemExit(f"exploration_errors: {path} lacks {', '.join(missing)} (exploration.py --traces writes it)")
+    T, N = d["error"].shape if d["error"].ndim == 2 else (-1, -1)
+    shapes = {"t": (T,), "active": (T, N), "outcome": (N,), "end_t": (N,), "pose": (T, N, 3), "true_pose": (T, N, 3)}
+    bad = [f"{k} {d[k].shape}" for k, shape in shapes.items() if d[k].shape != shape]
+    if T < 1 or bad:
         raise SystemExit(
-            f"exploration_errors: {path} lacks {', '.join(missing)} (write it with exploration.py --traces)"
+            f"exploration_errors: {path}: error must be (ticks, runs) and the rest agree with it "
+            f"(every run's path kept: --traces keeps them all); got error {d['error'].shape}, {', '.join(bad)}"
         )
-    if d["pose"].shape[1] != d["error"].shape[1]:
-        raise SystemExit(f"exploration_errors: {path} keeps the paths of {d['pose'].shape[1]} of "
-                         f"{d['error'].shape[1]} runs; --traces keeps them all")  # fmt: skip
     return d
+
+
+def yaw_walk_median(yaw_walk: float, t: np.ndarray, randomize: bool = True) -> np.ndarray:
+    """Median over robots of |yaw drift| at times t (rad): the drift is yaw_walk x s x sqrt(t) x N(0, 1), with
+    s = 1, or uniform over `sim.fleet.NOISE_SCALE` in a randomized fleet (the median of the mixture, by
+    bisection on its distribution function)."""
+    from scipy.special import ndtr
+
+    from jaxquad.sim.fleet import NOISE_SCALE
+
+    s = np.linspace(*NOISE_SCALE, 2001) if randomize else np.ones(1)
+    lo, hi = 0.0, 10.0
+    for _ in range(60):
+        m = 0.5 * (lo + hi)
+        lo, hi = (m, hi) if np.mean(2 * ndtr(m / s) - 1) < 0.5 else (lo, m)
+    return 0.5 * (lo + hi) * yaw_walk * np.sqrt(t)
 
 
 def summarize(d: dict, yaw_walk: float) -> dict:
     from jaxquad.explore import OUTCOMES
 
     t, err, active = d["t"], d["error"], d["active"].astype(bool)
+    randomize = bool(d.get("randomize", True))
     heading = np.degrees(np.abs(_wrap(d["pose"][..., 2] - d["true_pose"][..., 2])))
     lost = np.flatnonzero(d["outcome"] == OUTCOMES.index("lost"))
     minutes = []
     tick = float(t[1] - t[0]) if len(t) > 1 else 0.0
-    for m in range(1, int((t[-1] + tick) // 60) + 1):  # the last sample is a tick before the run's end
-        k = min(np.searchsorted(t, 60.0 * m), len(t) - 1)
+    for m in range(1, int((t[-1] + tick) // 60) + 1):  # the samples hold each tick's end time
+        k = int(np.searchsorted(t, 60.0 * m + 1e-3 * tick, side="right")) - 1  # the last sample at or before m min
         a = active[k]
         minutes.append({
-            "t_s": 60.0 * m,
+            "t_s": float(t[k]),
             "active_runs": int(a.sum()),
             "position_error_median_m": float(np.median(err[k, a])) if a.any() else None,
             "heading_error_median_deg": float(np.median(heading[k, a])) if a.any() else None,
-            "imu_yaw_walk_median_deg": float(np.degrees(MEDIAN_ABS * yaw_walk * np.sqrt(60.0 * m))),
+            "imu_yaw_walk_median_deg": float(np.degrees(yaw_walk_median(yaw_walk, t[k], randomize))),
         })  # fmt: skip
     runs = []
     for i in lost:
-        k = max(int(np.searchsorted(t, d["end_t"][i])) - 1, 1)
+        ticks = np.flatnonzero(active[:, i])
+        k = int(ticks[-1]) if ticks.size else 0  # the tick the run ended on is its last active one
         runs.append({
             "run": int(i),
             "end_s": float(d["end_t"][i]),
-            "largest_tick_change_m": float(np.max(np.abs(np.diff(err[: k + 1, i])))),
+            "largest_tick_change_m": float(np.max(np.abs(np.diff(err[: k + 1, i])), initial=0.0)),
             "final_heading_error_deg": float(heading[k, i]),
         })  # fmt: skip
-    return {"runs": int(err.shape[1]), "lost": len(runs), "per_minute": minutes, "lost_runs": runs}
+    return {"runs": int(err.shape[1]), "lost": len(runs), "randomized_noise": randomize, "per_minute": minutes,
+            "lost_runs": runs}  # fmt: skip
 
 
 def plot(d: dict, yaw_walk: float, path: Path) -> None:
@@ -101,7 +121,8 @@ def plot(d: dict, yaw_walk: float, path: Path) -> None:
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     axes[0].axhline(0.5, color="tab:red", ls=":", lw=1, label="lost above this for 2 s")
-    axes[1].plot(t / 60, np.degrees(MEDIAN_ABS * yaw_walk * np.sqrt(t)), color="tab:blue", lw=2, ls="--",
+    walk = yaw_walk_median(yaw_walk, t, bool(d.get("randomize", True)))
+    axes[1].plot(t / 60, np.degrees(walk), color="tab:blue", lw=2, ls="--",
                  label="median of the IMU yaw's random walk")  # fmt: skip
     axes[1].set_ylim(0, min(15.0, float(np.nanmax(heading)) + 1))
     for ax in axes:
@@ -120,8 +141,13 @@ def main() -> int:
     p.add_argument("traces", type=Path, help="a cell's traces, from exploration.py --traces")
     p.add_argument("--out", type=Path, default=None, help="the figure (.png; default: none)")
     args = p.parse_args()
-    if args.out is not None and not args.out.parent.is_dir():
-        p.error(f"--out: folder {args.out.parent} does not exist")
+    if args.out is not None:
+        from jaxquad.io.atomic import check_output_file
+
+        try:
+            check_output_file(args.out, "--out")
+        except (ValueError, OSError) as e:
+            p.error(str(e))
     from jaxquad.sim.sensors import SensorNoise
 
     yaw_walk = float(SensorNoise.default().yaw_walk)

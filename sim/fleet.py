@@ -64,6 +64,7 @@ from .routes import plan_loop
 from .worlds import World, make_world
 
 MAX_FRAMES_PER_CHUNK = 30  # camera periods per chunk when memory allows (~1 s)
+NOISE_SCALE = (0.5, 1.5)  # randomized fleets: each robot's noise levels times a uniform draw from this range
 
 
 @dataclasses.dataclass(frozen=True)
@@ -197,7 +198,7 @@ def build_fleet(config: FleetConfig, compile_chunk: bool = True) -> Fleet:
     stack = lambda tree: jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (n,) + jnp.shape(x)), tree)  # noqa: E731
     noise = stack(S.SensorNoise.default())
     if config.randomize:
-        noise = jax.vmap(S.SensorNoise.scaled)(noise, jnp.asarray(rng.uniform(0.5, 1.5, n), jnp.float32))
+        noise = jax.vmap(S.SensorNoise.scaled)(noise, jnp.asarray(rng.uniform(*NOISE_SCALE, n), jnp.float32))
     boxes = jax.vmap(Boxes)(  # one world per robot
         center=jnp.asarray(np.stack([worlds[w].center for w in which])),
         half=jnp.asarray(np.stack([worlds[w].half for w in which])),

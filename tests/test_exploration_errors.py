@@ -23,22 +23,24 @@ def _module(name):
 
 errors, exploration = _module("exploration_errors"), _module("exploration")
 
-T = np.arange(1, 1251) * 0.096  # 1250 ticks, to 120 s
+T = np.arange(1, 1250) * 0.096  # tick end times, the last at 119.904 s: the 2nd minute's sample is a tick short
 
 
 def _traces():
     n = 3
     t = T.astype(np.float32)
-    err = np.tile(0.001 * np.arange(len(t))[:, None], (1, n)).astype(np.float32)
+    err = (0.001 * np.arange(len(t))[:, None] * np.array([1.0, 2.0, 3.0])).astype(np.float32)  # 1, 2, 3 mm a tick
     err[500, 1] += 0.2  # run 1 jumps once by 0.2 m (and back)
     active = np.ones((len(t), n), bool)
     end = np.full(n, np.nan)
-    end[1] = t[800]
+    end[1] = t[800]  # run 1 lost at 76.9 s: its tick 800 is its last active one
     active[801:, 1] = False
     true_pose = np.zeros((len(t), n, 3), np.float32)
-    true_pose[..., 2] = np.pi - 0.01  # the SLAM heading across the +-pi seam: 0.02 rad off, not 2 pi - 0.02
+    true_pose[..., 2] = np.pi - 0.01  # headings across the +-pi seam: off by 0.02 rad x (1, 2, 3), not 2 pi - ...
     pose = true_pose.copy()
-    pose[..., 2] = -np.pi + 0.01
+    pose[..., 2] = -np.pi + 0.01 * np.array([1.0, 3.0, 5.0])
+    pose[800, 1, 2] = -np.pi + 0.05  # run 1's last tick: 0.06 rad off
+    pose[801:, 1, 2] = 0.0  # after its end run 1's trace is garbage, which the summary must not read
     outcome = np.array([OUTCOMES.index("running"), OUTCOMES.index("lost"), OUTCOMES.index("collided")])
     return dict(t=t, error=err, active=active, outcome=outcome, end_t=end, pose=pose, true_pose=true_pose)
 
@@ -46,26 +48,39 @@ def _traces():
 def test_summary_medians_lost_runs_and_the_random_walk():
     s = errors.summarize(_traces(), yaw_walk=np.deg2rad(0.2))
     assert s["runs"] == 3 and s["lost"] == 1
-    m1, m2 = s["per_minute"]  # 120 s of samples, the last a tick before 120 s
-    k = np.searchsorted(T, 60.0)
-    assert m1["active_runs"] == 3 and m1["position_error_median_m"] == pytest.approx(0.001 * k, rel=1e-5)
-    assert m2["active_runs"] == 2  # the lost run ended at 76.9 s
-    assert m1["heading_error_median_deg"] == pytest.approx(np.degrees(0.02), abs=1e-3)
-    assert m2["imu_yaw_walk_median_deg"] == pytest.approx(norm.ppf(0.75) * 0.2 * np.sqrt(120.0), rel=1e-3)
+    m1, m2 = s["per_minute"]
+    # Minute 1: tick 625 ends at 60.0 s, all three runs active: the median is run 1's 2 mm x 624.
+    assert m1["t_s"] == pytest.approx(60.0, abs=1e-4) and m1["active_runs"] == 3
+    assert m1["position_error_median_m"] == pytest.approx(0.002 * 624, rel=1e-5)
+    assert m1["heading_error_median_deg"] == pytest.approx(np.degrees(0.04), abs=1e-3)
+    # Minute 2: the last sample, 119.904 s; run 1 ended: the median of runs 0 and 2 (1 and 3 mm x 1248).
+    assert m2["t_s"] == pytest.approx(119.904, abs=1e-4) and m2["active_runs"] == 2
+    assert m2["position_error_median_m"] == pytest.approx(0.002 * 1248, rel=1e-5)
+    assert m2["heading_error_median_deg"] == pytest.approx(np.degrees(0.04), abs=1e-3)
     (run,) = s["lost_runs"]
     assert run["run"] == 1 and run["end_s"] == pytest.approx(T[800], rel=1e-6)
-    assert run["largest_tick_change_m"] == pytest.approx(0.201, rel=1e-4)
+    assert run["largest_tick_change_m"] == pytest.approx(0.202, rel=1e-4)
+    assert run["final_heading_error_deg"] == pytest.approx(np.degrees(0.06), abs=1e-3)
+
+
+def test_yaw_walk_median_against_sampling():
+    rng = np.random.default_rng(0)
+    z = rng.standard_normal(2_000_000)
+    walk = np.deg2rad(0.2)
+    assert errors.yaw_walk_median(walk, 60.0, randomize=False) == pytest.approx(norm.ppf(0.75) * walk * np.sqrt(60))
+    mixed = np.median(np.abs(rng.uniform(0.5, 1.5, z.size) * z)) * walk * np.sqrt(60)  # sim.fleet's draw
+    assert errors.yaw_walk_median(walk, 60.0) == pytest.approx(mixed, rel=2e-3)
 
 
 def test_traces_round_trip_and_bad_files(tmp_path):
     d = _traces()
-    config = SimpleNamespace(robot="go2", world="warehouse", variant="full", seed=0)
+    config = SimpleNamespace(robot="go2", world="warehouse", variant="full", seed=0, randomize=False)
     extra = dict(coverage=d["error"], distance=np.ones(3), nodes=np.ones(3), loops=np.zeros(3), starts=np.zeros((3, 3)))
     result = SimpleNamespace(config=config, **d, **extra)
     exploration.save_traces(tmp_path / "cell.npz", result)
     back = errors.load(tmp_path / "cell.npz")
     np.testing.assert_array_equal(back["pose"], d["pose"])
-    assert str(back["world"]) == "warehouse" and int(back["seed"]) == 0
+    assert str(back["world"]) == "warehouse" and int(back["seed"]) == 0 and not bool(back["randomize"])
     errors.plot(back, np.deg2rad(0.2), tmp_path / "errors.png")
     assert (tmp_path / "errors.png").stat().st_size > 0
 
@@ -75,3 +90,9 @@ def test_traces_round_trip_and_bad_files(tmp_path):
     (tmp_path / "broken.npz").write_text("not a zip")
     with pytest.raises(SystemExit, match="cannot read"):
         errors.load(tmp_path / "broken.npz")
+    np.save(tmp_path / "bare.npy", d["t"])
+    with pytest.raises(SystemExit, match="cannot read"):
+        errors.load(tmp_path / "bare.npy")
+    np.savez(tmp_path / "some_paths.npz", **(d | {"pose": d["pose"][:, :1], "true_pose": d["true_pose"][:, :1]}))
+    with pytest.raises(SystemExit, match="every run's path"):
+        errors.load(tmp_path / "some_paths.npz")
