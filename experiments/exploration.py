@@ -138,6 +138,7 @@ def plot(rows: list[dict], folder: Path) -> Path:
             ax.grid(alpha=0.3)
             ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
+    folder.mkdir(parents=True, exist_ok=True)
     path = folder / "coverage_vs_time.png"
     with atomic_open(path, "wb") as f:
         fig.savefig(f, format="png", dpi=110)
@@ -207,7 +208,6 @@ def main() -> int:
     if args.json:
         atomic_write_text(args.json, text + "\n")
     if args.figures:
-        Path(args.figures).mkdir(parents=True, exist_ok=True)
         print(f"figure: {plot(rows, Path(args.figures))}", file=sys.stderr)
     return 0
 

@@ -23,8 +23,11 @@ from pathlib import Path
 import numpy as np
 
 
-def _wrap(a: np.ndarray) -> np.ndarray:
-    return (a + np.pi) % (2 * np.pi) - np.pi
+def heading_error_deg(d: dict) -> np.ndarray:
+    """(ticks, runs) absolute SLAM heading error (deg)."""
+    from jaxquad.kernels.lie import wrap_angle
+
+    return np.degrees(np.abs(np.asarray(wrap_angle(d["pose"][..., 2] - d["true_pose"][..., 2]))))
 
 
 def load(path: Path) -> dict:
@@ -70,7 +73,7 @@ def summarize(d: dict, yaw_walk: float) -> dict:
 
     t, err, active = d["t"], d["error"], d["active"].astype(bool)
     randomize = bool(d.get("randomize", True))
-    heading = np.degrees(np.abs(_wrap(d["pose"][..., 2] - d["true_pose"][..., 2])))
+    heading = heading_error_deg(d)
     lost = np.flatnonzero(d["outcome"] == OUTCOMES.index("lost"))
     minutes = []
     tick = float(t[1] - t[0]) if len(t) > 1 else 0.0
@@ -109,7 +112,7 @@ def plot(d: dict, yaw_walk: float, path: Path) -> None:
 
     t, active = d["t"], d["active"].astype(bool)
     err = np.where(active, d["error"], np.nan)
-    heading = np.where(active, np.degrees(np.abs(_wrap(d["pose"][..., 2] - d["true_pose"][..., 2]))), np.nan)
+    heading = np.where(active, heading_error_deg(d), np.nan)
     lost = d["outcome"] == OUTCOMES.index("lost")
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), constrained_layout=True)
     for ax, y, label in ((axes[0], err, "SLAM position error (m)"), (axes[1], heading, "SLAM heading error (deg)")):

@@ -108,7 +108,7 @@ def edge_errors(state, out, gt: np.ndarray) -> dict | None:
 def _trajectory_scores(t: np.ndarray, pose: np.ndarray, gt: np.ndarray, valid: np.ndarray) -> dict:
     from jaxquad.estimate.run import trajectory_metrics
 
-    # Scans that do not advance the clock (a laser log's stamps that went back) are not scored.
+    # Scans without truth, or that do not advance the clock (a laser log's stamps that went back), are not scored.
     ok = valid & np.all(np.isfinite(pose), axis=1) & np.all(np.isfinite(gt), axis=1) & np.r_[True, np.diff(t) > 0]
     if ok.sum() < 3:
         return {"error": f"only {int(ok.sum())} scans have a pose"}
