@@ -9,11 +9,13 @@ speed. It prints the rows as JSON (`--json` also writes them) and a Markdown tab
 `coverage_vs_time.png` in `--figures` (mean and 10-90 % band per variant; a panel per robot and world).
 `--traces DIR` also keeps every run's path and writes `<robot>_<world>_<variant>.npz` per cell (times,
 SLAM position error, true and SLAM poses, outcomes, loop closures): `experiments/exploration_errors.py`
-draws the SLAM's error over time from it.
+draws the SLAM's error over time from it. Runs longer than one sitting: with `--checkpoint DIR --wall-budget S`
+the script saves the running cell to DIR after S s of wall time and exits with status 75; the same command
+again goes on from there (finished cells are kept in DIR as `<cell>.json` and not run again).
 
     python experiments/exploration.py [--runs 100] [--robots go2 badger] [--worlds house warehouse]
         [--variants baseline full] [--seconds T] [--seed 0] [--samples 256] [--horizon 30]
-        [--json rows.json] [--figures DIR] [--traces DIR]
+        [--json rows.json] [--figures DIR] [--traces DIR] [--checkpoint DIR --wall-budget S]
 
 Without `--seconds` each world runs its target time: 600 s in the house, 900 s in the warehouse.
 """
@@ -21,6 +23,7 @@ Without `--seconds` each world runs its target time: 600 s in the house, 900 s i
 from __future__ import annotations
 
 import argparse
+import json
 import platform
 import sys
 import time
@@ -30,13 +33,37 @@ import numpy as np
 
 TARGET_S = {"house": 600.0, "warehouse": 900.0}
 GOAL = 0.95  # coverage a run should reach
+PAUSED_STATUS = 75  # sysexits' EX_TEMPFAIL: not done yet, run again
 
 
-def run_cell(args, robot: str, world: str, variant: str) -> dict:
+def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
+    """What a cell's row depends on: a finished row in --checkpoint is reused only for the same settings."""
+    keep = ("runs", "seconds", "seed", "samples", "horizon", "every", "band_height", "band_reduce")
+    return {"robot": robot, "world": world, "variant": variant, "traces": bool(args.traces)} | {
+        k: getattr(args, k) for k in keep
+    }
+
+
+def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | None = None) -> dict:
+    """One cell's row. With `--checkpoint DIR` a finished row is read from DIR/<cell>.json when its settings
+    match, and the run is saved to DIR/<cell>.npz (and `checkpoint.Paused` raised) once `wall_budget_s` run out."""
     import jax
 
     from jaxquad.explore import ExploreConfig, explore
     from jaxquad.explore.report import coverage_samples, summarize
+    from jaxquad.io.atomic import atomic_write_text
+    from jaxquad.io.jsonfile import to_json
+
+    name = f"{robot}_{world}_{variant}"
+    settings = _cell_settings(args, robot, world, variant)
+    if args.checkpoint:
+        done = Path(args.checkpoint) / f"{name}.json"
+        if done.exists():
+            saved = json.loads(done.read_text())
+            if saved.get("settings") != settings:
+                raise ValueError(f"{done}: a finished cell with other settings; remove it or choose another folder")
+            print(f"{name}: finished earlier ({done})", file=sys.stderr, flush=True)
+            return saved["row"]
 
     seconds = args.seconds or TARGET_S[world]
     cfg = ExploreConfig(
@@ -54,14 +81,15 @@ def run_cell(args, robot: str, world: str, variant: str) -> dict:
         devices=args.devices,
     )
     t0 = time.perf_counter()
-    result = explore(cfg)
+    checkpoint = Path(args.checkpoint) / f"{name}.npz" if args.checkpoint else None
+    result = explore(cfg, checkpoint=checkpoint, wall_budget_s=wall_budget_s)
     print(f"{robot} {world} {variant}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
     if args.traces:
-        save_traces(Path(args.traces) / f"{robot}_{world}_{variant}.npz", result)
+        save_traces(Path(args.traces) / f"{name}.npz", result)
     summary = summarize(result, args.every)
     times, cov = coverage_samples(result, args.every)
     final = np.asarray(summary["coverage"]["per_robot"])
-    return {
+    row = {
         "robot": robot,
         "world": world,
         "variant": variant,
@@ -85,6 +113,10 @@ def run_cell(args, robot: str, world: str, variant: str) -> dict:
         "devices": args.devices or jax.local_device_count(),
         "robot_seconds_per_s": summary["timing"]["robot_seconds_per_s"],
     }
+    if checkpoint is not None:
+        atomic_write_text(checkpoint.with_suffix(".json"), to_json({"settings": settings, "row": row}) + "\n")
+        checkpoint.unlink(missing_ok=True)
+    return row
 
 
 def save_traces(path: Path, result) -> None:
@@ -169,16 +201,24 @@ def main() -> int:
     p.add_argument("--json", default=None, help="write the rows as JSON here (default: stdout only)")
     p.add_argument("--figures", default=None, help="folder for coverage_vs_time.png (default: none)")
     p.add_argument("--traces", default=None, help="folder for every run's traces, an .npz per cell (default: none)")
+    p.add_argument("--checkpoint", default=None,
+                   help="folder for runs saved when --wall-budget runs out and for finished cells; the same command "
+                        "again goes on from them (default: none)")  # fmt: skip
+    p.add_argument("--wall-budget", type=float, default=None,
+                   help=f"wall-clock seconds after which the running cell is saved to --checkpoint and the script "
+                        f"exits with status {PAUSED_STATUS} (default: no limit)")  # fmt: skip
     args = p.parse_args()
     if min(args.runs, args.band_height) < 1 or not (args.seconds is None or args.seconds > 0) or not args.every > 0:
         p.error("--runs and --band-height must be >= 1 and --seconds, --every positive")
+    if args.wall_budget is not None and not (args.checkpoint and args.wall_budget > 0):
+        p.error("--wall-budget must be positive and needs --checkpoint")
     from jaxquad.io.atomic import atomic_write_text, check_output_dir, check_output_file
     from jaxquad.io.jsonfile import to_json
 
     try:  # the outputs checked before any work: one-line errors
         if args.json:
             check_output_file(args.json, "--json")
-        for flag, folder in (("--figures", args.figures), ("--traces", args.traces)):
+        for flag, folder in (("--figures", args.figures), ("--traces", args.traces), ("--checkpoint", args.checkpoint)):
             if folder:
                 check_output_dir(folder, flag, kind=None)
     except (ValueError, OSError) as e:
@@ -188,7 +228,20 @@ def main() -> int:
 
     print(f"`python {' '.join(sys.argv)}`  ", file=sys.stderr)
     print(f"machine: {platform.node()}, {jax.devices()[0].device_kind}, jax {jax.__version__}", file=sys.stderr)
-    rows = [run_cell(args, r, w, v) for r in args.robots for w in args.worlds for v in args.variants]
+    from jaxquad.explore.checkpoint import Paused
+
+    t_start, rows = time.perf_counter(), []
+    try:
+        for r in args.robots:
+            for w in args.worlds:
+                for v in args.variants:
+                    left = None if args.wall_budget is None else args.wall_budget - (time.perf_counter() - t_start)
+                    rows.append(run_cell(args, r, w, v, left if left is None or left > 0 else 1e-9))
+    except Paused as e:
+        print(f"{e}; the finished cells are kept in {args.checkpoint}", file=sys.stderr)
+        return PAUSED_STATUS
+    except ValueError as e:
+        p.error(str(e))
     print("| robot | world | variant | runs | s | coverage final mean (min) | runs >= 95 % | median time to 95 % s "
           "| coverage_clear mean | runs clear >= 95 % | IoU | explored | collided | lost | fallen |",
           file=sys.stderr)  # fmt: skip

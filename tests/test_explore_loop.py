@@ -4,6 +4,7 @@ coverage sampling against a loop), and a small CPU exploration in the MJX simula
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from types import SimpleNamespace
 
@@ -121,6 +122,28 @@ def test_small_exploration_grows_its_map(run, tmp_path):
     plot_maps(run, tmp_path / "maps.png")
     plot_coverage(run, tmp_path / "coverage.png", 6.0)
     assert (tmp_path / "maps.png").stat().st_size > 10_000 and (tmp_path / "coverage.png").stat().st_size > 5_000
+
+
+@pytest.mark.slow
+def test_a_paused_run_goes_on_to_the_same_result(run, tmp_path):
+    """The fixture's run again, paused after its first chunk and after its second (each in a fresh `explore`
+    call, as a new process would), then finished: every output equals the run without pauses."""
+    from jaxquad.explore import explore
+    from jaxquad.explore.checkpoint import Paused
+
+    cfg, path = run.config, tmp_path / "run.npz"
+    for done_s in (4.8, 9.6):
+        with pytest.raises(Paused) as e:
+            explore(cfg, checkpoint=path, wall_budget_s=1e-9)  # at least one chunk a sitting
+        assert e.value.sim_s == done_s and path.exists()
+    with pytest.raises(ValueError, match="other settings"):  # another run's file, refused before any work
+        explore(dataclasses.replace(cfg, samples=32), checkpoint=path)
+    seen = []
+    again = explore(cfg, checkpoint=path, progress=lambda done, total: seen.append(done))
+    assert seen[0] == 9.6 and seen[-1] == 48.0
+    for name in ("t", "coverage", "error", "active", "true_pose", "pose", "outcome", "end_t", "distance", "maps"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(run, name), err_msg=name)
+    assert again.nodes[0] == run.nodes[0] and again.loops[0] == run.loops[0]
 
 
 def test_clear_cells_are_the_reachable_squares_no_box_touches():

@@ -7,6 +7,9 @@ Output folder:
                  outcomes and flags, distance walked, SLAM error, timing (jaxquad.explore.report)
   maps.png       the first robots' final SLAM maps with their true and SLAM paths
   coverage.png   coverage against time, every robot and the mean
+
+A run longer than one sitting: `--checkpoint run.npz --wall-budget 500` saves the run after 500 s of wall
+time and exits with status 75; the same command again goes on from the file (jaxquad.explore.checkpoint).
 """
 
 from __future__ import annotations
@@ -14,6 +17,8 @@ from __future__ import annotations
 import argparse
 
 from jaxquad.explore.report import SUMMARY_KIND
+
+PAUSED_STATUS = 75  # sysexits' EX_TEMPFAIL: not done yet, run again
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -66,16 +71,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--every", type=float, default=5.0, help="coverage sampling period in summary.json, s (default 5)"
     )
     parser.add_argument("--plot-robots", type=int, default=4, help="robots drawn in maps.png (default 4)")
+    parser.add_argument(
+        "--checkpoint",
+        default=None,
+        help="file (.npz) the run is saved to when --wall-budget runs out; a run whose file exists goes on from it "
+        "(same settings); removed once the outputs are written (default: none)",
+    )
+    parser.add_argument(
+        "--wall-budget",
+        type=float,
+        default=None,
+        help="wall-clock seconds after which the run is saved to --checkpoint at the end of a chunk and the "
+        f"command exits with status {PAUSED_STATUS}; run it again to go on (default: no limit)",
+    )
     add_devices_argument(parser, processes=False)
 
 
 def run(args: argparse.Namespace) -> int:
     import math
+    import sys
+    from pathlib import Path
 
     from jaxquad.cli import progress_bar
+    from jaxquad.explore.checkpoint import Paused
     from jaxquad.explore.fleet import REPLAN_TICKS, ExploreConfig, explore
     from jaxquad.explore.report import plot_coverage, plot_maps, summarize
-    from jaxquad.io.atomic import atomic_dir, check_output_dir
+    from jaxquad.io.atomic import atomic_dir, check_output_dir, check_output_file
     from jaxquad.io.jsonfile import to_json, write_json
 
     for option, value in (
@@ -95,7 +116,14 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"{option} must be a positive number, got {value}")
     if not (math.isfinite(args.footprint_padding) and args.footprint_padding >= 0):
         raise ValueError(f"--footprint-padding must be a number >= 0, got {args.footprint_padding}")
+    if args.wall_budget is not None:
+        if args.checkpoint is None:
+            raise ValueError("--wall-budget needs --checkpoint, the file the run is saved to")
+        if not (math.isfinite(args.wall_budget) and args.wall_budget > 0):
+            raise ValueError(f"--wall-budget must be a positive number of seconds, got {args.wall_budget}")
     check_output_dir(args.out, kind=SUMMARY_KIND)
+    if args.checkpoint is not None:
+        check_output_file(args.checkpoint, "--checkpoint")
     cfg = ExploreConfig(
         robot=args.robot,
         world=args.world,
@@ -115,13 +143,19 @@ def run(args: argparse.Namespace) -> int:
         trace_robots=max(args.plot_robots, 1),
         devices=args.devices,
     )
-    with progress_bar("explore", "sim s") as progress:
-        result = explore(cfg, progress=progress)
+    try:
+        with progress_bar("explore", "sim s") as progress:
+            result = explore(cfg, progress=progress, checkpoint=args.checkpoint, wall_budget_s=args.wall_budget)
+    except Paused as e:
+        print(f"jaxquad explore: {e}", file=sys.stderr)
+        return PAUSED_STATUS
     summary = summarize(result, args.every)
     with atomic_dir(args.out) as tmp:
         write_json(tmp / "summary.json", summary)
         plot_maps(result, tmp / "maps.png", args.plot_robots)
         plot_coverage(result, tmp / "coverage.png", args.every)
+    if args.checkpoint is not None:
+        Path(args.checkpoint).unlink(missing_ok=True)  # the run is done and its outputs are written
     brief = {"robots": summary["robots"], "coverage_mean": summary["coverage"]["mean"]}
     brief["coverage_per_robot"] = summary["coverage"]["per_robot"]
     brief["map_iou_mean"] = summary["map_iou"]["mean"]

@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from pathlib import Path
 
 import equinox as eqx
 import jax
@@ -26,14 +27,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxquad import parallel, slam
+from jaxquad.explore import checkpoint as ckpt
 from jaxquad.explore import loop as xl
 from jaxquad.kernels.occupancy import occupancy_values
 from jaxquad.nav import explore as nav_explore
 from jaxquad.nav import missions
 from jaxquad.nav.fleet import REPLAN_TICKS, body_params, loop_nav_params
-from jaxquad.nav.fleet_loop import keep_first, loop_functions, place_robots, start_qpos
+from jaxquad.nav.fleet_loop import compile_chunk, keep_first, loop_functions, place_robots, start_qpos
 
 VARIANTS = {"full": ("leg", "stabilized", "preintegrated"), "baseline": ("visual", "baseline", "off")}
+TRACED = ("true_pose", "pose", "goal")  # outputs kept for the first `trace_robots` robots only
 SCAN_RANGE = 8.0  # m, the scans' range limit (the depth camera's); scan matching reads up to match_max_range
 
 
@@ -195,9 +198,39 @@ def _compiled_functions(fleet, loop: xl.ExploreLoopConfig, mesh):
     return _FUNCTIONS[key]
 
 
-def explore(cfg: ExploreConfig, starts: np.ndarray | None = None, progress=None) -> ExploreResult:
+def _joined(outs: list):
+    """Chunks' outputs (host, time-major) as one."""
+    return jax.tree.map(lambda *x: np.concatenate(x), *outs)
+
+
+def _kept_like(out, n_trace: int):
+    """The structure, shapes and types of one chunk's outputs (`jax.ShapeDtypeStruct`s) as `keep_first` keeps them
+    (mapped over the tree: the output's own constructor would check its fields' types)."""
+
+    def kept(path, x):
+        robots = n_trace if path[-1].name in TRACED else x.shape[1]
+        return jax.ShapeDtypeStruct((x.shape[0], robots, *x.shape[2:]), x.dtype)
+
+    return jax.tree_util.tree_map_with_path(kept, out)
+
+
+def explore(
+    cfg: ExploreConfig,
+    starts: np.ndarray | None = None,
+    progress=None,
+    checkpoint: str | Path | None = None,
+    wall_budget_s: float | None = None,
+) -> ExploreResult:
     """Run the fleet; `starts` (N, 3) replaces the drawn starts. `progress(done_s, total_s)` is called with
-    the simulated seconds after each chunk (first with 0 once the run is set up)."""
+    the simulated seconds after each chunk (first with those done once the run is set up).
+
+    With a `checkpoint` file the run goes on from it when it exists (`jaxquad.explore.checkpoint`: same
+    settings and starts, else ValueError); once `wall_budget_s` of wall time have passed since the call,
+    the run is saved there at the end of a chunk and `checkpoint.Paused` is raised. The file is left in
+    place when the run finishes: the caller removes it once the results are safe."""
+    if wall_budget_s is not None and (checkpoint is None or not wall_budget_s > 0):
+        raise ValueError("a wall-clock budget needs a checkpoint file to save the run to, and must be positive")
+    t_call = time.perf_counter()
     from jaxquad.sim import FleetConfig, build_fleet
     from jaxquad.sim.worlds import occupancy_map
 
@@ -230,30 +263,44 @@ def explore(cfg: ExploreConfig, starts: np.ndarray | None = None, progress=None)
         model=fleet.model, setup=fleet.setup, reachable=jnp.asarray(reachable), replan=jnp.asarray(True)
     )
     n = cfg.n_robots
+    run_id = ckpt.identity(cfg, starts)
+    resume = checkpoint is not None and Path(checkpoint).exists()
+    if resume:
+        ckpt.check(checkpoint, run_id)  # another run's file is refused before any compilation
     init, chunk, finish = _compiled_functions(fleet, loop, mesh)
     params, inputs, qpos0, keys = place_robots(
         mesh, params, inputs, lambda x: _input_axes(fleet, x), start_qpos(fleet.robot, starts), cfg.seed
     )
     t0 = time.perf_counter()
     states = init(params, inputs, qpos0, keys)
-    compiled = chunk.lower(params, states, inputs, n_ticks=cfg.chunk_ticks, replan_ticks=REPLAN_TICKS).compile()
+    compiled = compile_chunk(chunk, params, states, inputs, cfg.chunk_ticks, REPLAN_TICKS)
     compile_s = time.perf_counter() - t0
     n_chunks = max(1, math.ceil(cfg.seconds / (cfg.chunk_ticks * tick_dt) - 1e-9))
-    outs, run_s = [], 0.0
+    chunk_s = lambda k: round(min(cfg.seconds, k * cfg.chunk_ticks * tick_dt), 1)  # noqa: E731
+    n_trace = min(cfg.trace_robots, n)
+    outs, run_s, k0 = [], 0.0, 0
+    if resume:
+        saved = ckpt.load(checkpoint, run_id, states, _kept_like(compiled.out_info[1], n_trace))
+        states, outs, k0, run_s = saved.states, [saved.trace], saved.chunks, saved.run_s
+        compile_s += saved.compile_s
     if progress is not None:
-        progress(0, cfg.seconds)
-    for k in range(n_chunks):
+        progress(chunk_s(k0), cfg.seconds)
+    ended = np.asarray(states.outcome)[:n] != xl.RUNNING
+    for k in range(k0, n_chunks):
+        if ended.all():
+            break
+        if wall_budget_s is not None and k > k0 and time.perf_counter() - t_call > wall_budget_s:  # a chunk a sitting
+            ckpt.save(checkpoint, run_id, states, _joined(outs), k, run_s, compile_s)
+            raise ckpt.Paused(checkpoint, chunk_s(k), cfg.seconds)
         t1 = time.perf_counter()
         states, out = compiled(params, states, inputs)
-        outs.append(keep_first(out, min(cfg.trace_robots, n), ("true_pose", "pose", "goal")))
+        outs.append(keep_first(out, n_trace, TRACED))
         ended = np.asarray(states.outcome)[:n] != xl.RUNNING
         run_s += time.perf_counter() - t1  # the outputs' copy to the host included
         if progress is not None:
-            progress(round(min(cfg.seconds, (k + 1) * cfg.chunk_ticks * tick_dt), 1), cfg.seconds)
-        if ended.all():
-            break
+            progress(chunk_s(k + 1), cfg.seconds)
     maps, nodes, loops = (np.asarray(a)[:n] for a in jax.device_get(finish(params, states)))
-    trace = jax.tree.map(lambda *x: np.concatenate(x), *outs)
+    trace = _joined(outs)
     return ExploreResult(
         config=cfg,
         world=world,

@@ -32,7 +32,7 @@ from jaxquad.nav import closed_loop as cl
 from jaxquad.nav import missions
 from jaxquad.nav import navigate as nav
 from jaxquad.nav.body import BodyParams
-from jaxquad.nav.fleet_loop import keep_first, loop_functions, place_robots, start_qpos
+from jaxquad.nav.fleet_loop import compile_chunk, keep_first, loop_functions, place_robots, start_qpos
 
 VARIANTS = {"full": ("leg", "stabilized"), "baseline": ("visual", "baseline")}
 AMCL_FILE = Path(__file__).with_name("amcl.yaml")
@@ -274,9 +274,7 @@ def navigate(cfg: NavConfig, goals: np.ndarray | None = None, starts: np.ndarray
     )
     t0 = time.perf_counter()
     states = init(params, inputs, qpos0, keys)
-    compiled = chunk.lower(
-        params, states, inputs, n_ticks=cfg.chunk_ticks, replan_ticks=params.nav.replan_ticks
-    ).compile()
+    compiled = compile_chunk(chunk, params, states, inputs, cfg.chunk_ticks, int(params.nav.replan_ticks))
     compile_s = time.perf_counter() - t0
     # Every attempt ends by its time limit: the longest possible run bounds the loop.
     finite = np.asarray(table.value)[np.isfinite(np.asarray(table.value))]

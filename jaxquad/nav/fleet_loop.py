@@ -4,7 +4,8 @@ A loop is a pair of pure single-robot functions, `init(params, inputs, qpos0, ke
 `tick(params, state, inputs) -> (state, out)`, whose inputs carry a `replan` flag. `loop_functions`
 vmaps them over the robots and jits `init` and `chunk` (a `lax.scan` of `n_ticks` ticks, the flag set
 every `replan_ticks`), with the robots split over a device mesh (`jaxquad.parallel`: states at axis 0,
-the time-major outputs (T, N, ...) at axis 1). `place_robots` pads the robots to a multiple of the
+the time-major outputs (T, N, ...) at axis 1); `compile_chunk` compiles a chunk once per process for each
+set of argument shapes. `place_robots` pads the robots to a multiple of the
 devices with copies of the last (computed and dropped) and puts every argument on the mesh.
 """
 
@@ -40,6 +41,21 @@ def loop_functions(init, tick, input_axes, mesh):
         return parallel.shard_batched(run, mesh, ax, (0, 1))(params, states, inputs)
 
     return jax.jit(fleet_init), jax.jit(chunk, static_argnames=("n_ticks", "replan_ticks"), donate_argnums=(1,))
+
+
+# (chunk, argument structure, shapes, types and placement, n_ticks, replan_ticks) -> compiled chunk.
+_COMPILED: dict = {}
+
+
+def compile_chunk(chunk, params, states, inputs, n_ticks: int, replan_ticks: int):
+    """The compiled `chunk` for these arguments, reused by later runs with arguments of the same structure,
+    shapes and placement (the values may differ)."""
+    leaves, treedef = jax.tree.flatten((params, states, inputs))
+    sig = tuple((np.shape(x), getattr(x, "dtype", type(x)), getattr(x, "sharding", None)) for x in leaves)
+    key = (chunk, treedef, sig, n_ticks, replan_ticks)
+    if key not in _COMPILED:
+        _COMPILED[key] = chunk.lower(params, states, inputs, n_ticks=n_ticks, replan_ticks=replan_ticks).compile()
+    return _COMPILED[key]
 
 
 def start_qpos(robot, starts: np.ndarray) -> np.ndarray:
