@@ -286,6 +286,10 @@ CASES = {
         ("explore --out {new} --slam-params {bad_yaml}", ["bad.yaml", "bandwidth"]),
         ("explore --out {new} --slam-params {missing}", ["missing.npz"]),
         ("explore --robots 2", ["--out"]),
+        ("explore --out {new} --wall-budget 100", ["--wall-budget", "--checkpoint"]),
+        ("explore --out {new} --checkpoint {new}.npz --wall-budget -1", ["--wall-budget"]),
+        ("explore --out {new} --checkpoint {foreign}", ["--checkpoint", "foreign", "folder"]),
+        ("explore --out {new} --checkpoint {afile}/c.npz", ["--checkpoint", "afile"]),
     ],
     "posegraph": [
         ("posegraph {binary} --out {new}.g2o", ["binary", "UTF-8"]),

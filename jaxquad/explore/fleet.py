@@ -153,6 +153,7 @@ def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_d
     T_bc = np.asarray(fleet.T_base_camera)
     grid = slam.grid_spec_like(truth, values["max_laser_range"])
     spec, slam_params = slam.slam_config(values, grid, loop.lo_constraints, (float(T_bc[0, 3]), float(T_bc[1, 3]), 0.0))
+    spec = dataclasses.replace(spec, refresh_map=False)  # the loop redraws its map once per planning period
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     return xl.ExploreLoopParams(
         nav=nav_params,

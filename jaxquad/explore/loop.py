@@ -6,7 +6,10 @@ collision judge) is `jaxquad.nav.body`, as in the navigation loop. Per control t
 camera frames, 0.096 s) the last frame's scan, with the odometry and the leg odometry's planar twist,
 goes through one step of the online SLAM (`jaxquad.slam`), whose pose drives the controller. Once per
 planning period (a tick whose shared `replan` flag is set; under `vmap` a `lax.cond` skips it on the
-other ticks) the SLAM map becomes a costmap, `jaxquad.nav.explore.update` picks the nearest reachable
+other ticks) the SLAM map, redrawn from every node's scan if a loop closure has moved the nodes since the
+last period (`slam.refresh_map`: the fleet's SLAM skips the redraw in its own step, where under `vmap` one
+robot's closure made every robot wait for a redraw over all its nodes, nearly every tick in a fleet of 100),
+becomes a costmap, `jaxquad.nav.explore.update` picks the nearest reachable
 frontier (progress check and blacklist included) and the plan to it is read off the robot's own
 cost-to-go (`nav.plan_from_start`). Between plans MPPI follows it on that costmap. Without a frontier
 goal the robot turns in place (`spin_rate`) to look around: at the start, before its map has free
@@ -156,9 +159,11 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
         return slam.step(params.slam_spec, params.slam, s, inputs)
 
     def plan(params: ExploreLoopParams, s: ExploreLoopState, period: float):
-        """The planning period: the SLAM map's costmap, the next frontier goal and the plan to it."""
+        """The planning period: the SLAM map (redrawn if a loop closure moved its nodes), its costmap, the next
+        frontier goal and the plan to it."""
         g = params.slam_spec.grid
-        values = occupancy_values(s.slam.grid)
+        slam_state = slam.refresh_map(params.slam_spec, params.slam, s.slam)
+        values = occupancy_values(slam_state.grid)
         grid = nav.cost_grid(params.nav, values, jnp.array([g.origin_x, g.origin_y], jnp.float32), g.resolution)
         weight, value = explore.robot_value(params.explore, grid, s.pose)
         ex, choice = explore.update(params.explore, s.explore, values, grid, s.pose, period, value)
@@ -168,7 +173,7 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
         moved = jnp.linalg.norm(ex.goal[:2] - s.explore.goal[:2]) > params.explore.blacklist_radius
         fresh = nav.init(params.nav, s.pose).controller
         ctrl = jax.tree.map(lambda a, b: jnp.where(moved, a, b), fresh, s.nav.controller)
-        return grid, ex, nav.NavState(controller=ctrl, plan=p)
+        return slam_state, grid, ex, nav.NavState(controller=ctrl, plan=p)
 
     def init(params: ExploreLoopParams, inputs: ExploreInputs, qpos0, key) -> ExploreLoopState:
         k_sim, key = jax.random.split(key)
@@ -214,8 +219,8 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
         s = dataclasses.replace(s, body=b, slam=slam_state, pose=pose)
 
         period = params.nav.replan_ticks * tick_dt
-        grid, ex, nav_state = jax.lax.cond(
-            inputs.replan, lambda: plan(params, s, period), lambda: (s.grid, s.explore, s.nav)
+        slam_state, grid, ex, nav_state = jax.lax.cond(
+            inputs.replan, lambda: plan(params, s, period), lambda: (s.slam, s.grid, s.explore, s.nav)
         )
         key, k_nav = jax.random.split(s.key)
         nav_state, ctrl = nav.step(
@@ -243,6 +248,7 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
         still = outcome == RUNNING
         s = dataclasses.replace(
             s,
+            slam=slam_state,
             grid=grid,
             explore=ex,
             nav=nav_state,
