@@ -33,13 +33,12 @@ import numpy as np
 
 TARGET_S = {"house": 600.0, "warehouse": 900.0}
 GOAL = 0.95  # coverage a run should reach
-PAUSED_STATUS = 75  # sysexits' EX_TEMPFAIL: not done yet, run again
 
 
 def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     """What a cell's row depends on: a finished row in --checkpoint is reused only for the same settings."""
     keep = ("runs", "seconds", "seed", "samples", "horizon", "every", "band_height", "band_reduce")
-    return {"robot": robot, "world": world, "variant": variant, "traces": bool(args.traces)} | {
+    return {"robot": robot, "world": world, "variant": variant, "traces": args.traces} | {
         k: getattr(args, k) for k in keep
     }
 
@@ -50,6 +49,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
     import jax
 
     from jaxquad.explore import ExploreConfig, explore
+    from jaxquad.explore.checkpoint import CheckpointError
     from jaxquad.explore.report import coverage_samples, summarize
     from jaxquad.io.atomic import atomic_write_text
     from jaxquad.io.jsonfile import to_json
@@ -61,7 +61,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         if done.exists():
             saved = json.loads(done.read_text())
             if saved.get("settings") != settings:
-                raise ValueError(f"{done}: a finished cell with other settings; remove it or choose another folder")
+                raise CheckpointError(f"{done}: a finished cell of other settings; remove it or choose another folder")
             print(f"{name}: finished earlier ({done})", file=sys.stderr, flush=True)
             return saved["row"]
 
@@ -180,6 +180,7 @@ def plot(rows: list[dict], folder: Path) -> Path:
 
 def main() -> int:
     from jaxquad.cli import add_band_reduce_argument
+    from jaxquad.explore.checkpoint import PAUSED_STATUS, CheckpointError, Paused
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--runs", type=int, default=4, help="robots per cell, each from its own start (default 4)")
@@ -228,19 +229,24 @@ def main() -> int:
 
     print(f"`python {' '.join(sys.argv)}`  ", file=sys.stderr)
     print(f"machine: {platform.node()}, {jax.devices()[0].device_kind}, jax {jax.__version__}", file=sys.stderr)
-    from jaxquad.explore.checkpoint import Paused
-
-    t_start, rows = time.perf_counter(), []
+    t_start, rows, ran = time.perf_counter(), [], False
     try:
         for r in args.robots:
             for w in args.worlds:
                 for v in args.variants:
                     left = None if args.wall_budget is None else args.wall_budget - (time.perf_counter() - t_start)
+                    finished = args.checkpoint is not None and (Path(args.checkpoint) / f"{r}_{w}_{v}.json").exists()
+                    if left is not None and left <= 0 and ran and not finished:
+                        # the budget went to a cell run in this sitting: the next one starts (and compiles) in the next
+                        print(f"paused before {r} {w} {v}; the finished cells are kept in {args.checkpoint}: run the "
+                              "same command again to go on", file=sys.stderr)  # fmt: skip
+                        return PAUSED_STATUS
                     rows.append(run_cell(args, r, w, v, left if left is None or left > 0 else 1e-9))
+                    ran = ran or not finished
     except Paused as e:
         print(f"{e}; the finished cells are kept in {args.checkpoint}", file=sys.stderr)
         return PAUSED_STATUS
-    except ValueError as e:
+    except CheckpointError as e:
         p.error(str(e))
     print("| robot | world | variant | runs | s | coverage final mean (min) | runs >= 95 % | median time to 95 % s "
           "| coverage_clear mean | runs clear >= 95 % | IoU | explored | collided | lost | fallen |",

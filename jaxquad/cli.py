@@ -56,12 +56,12 @@ _COMMANDS: dict[str, tuple[str, str]] = {
 
 
 @contextlib.contextmanager
-def progress_bar(desc: str, unit: str) -> Iterator[Callable[[int, int], None]]:
+def progress_bar(desc: str, unit: str) -> Iterator[Callable[[int | float, int | float], None]]:
     """A `progress(done, total)` callback drawing a tqdm bar on stderr from its first call on. Runs
     report `progress(0, total)` once their inputs are checked, so an input error prints alone."""
     bar = None
 
-    def progress(done: int, total: int) -> None:
+    def progress(done: int | float, total: int | float) -> None:
         nonlocal bar
         if bar is None:
             from tqdm import tqdm

@@ -59,6 +59,24 @@ def test_identity_tells_runs_apart_but_not_the_device_split():
     assert ck.identity(ExploreConfig(), starts + [[0.0, 0.01, 0.0]]) != base
 
 
+def test_identity_holds_the_slam_parameters_by_value(tmp_path):
+    """The same values from another file name are the same run; an edited file is another."""
+    from jaxquad.slam import load_params
+
+    a, b = tmp_path / "a.yaml", tmp_path / "b.yaml"
+    a.write_text("loop_search_maximum_distance: 2.5\n")
+    b.write_text("loop_search_maximum_distance: 2.5\n")
+    starts = np.zeros((1, 3))
+    assert ck.identity(ExploreConfig(slam_params=str(a)), starts) == ck.identity(
+        ExploreConfig(slam_params=str(b)), starts
+    )
+    b.write_text("loop_search_maximum_distance: 2.0\n")
+    assert load_params(str(b))["loop_search_maximum_distance"] == 2.0
+    assert ck.identity(ExploreConfig(slam_params=str(a)), starts) != ck.identity(
+        ExploreConfig(slam_params=str(b)), starts
+    )
+
+
 def test_another_runs_file_is_refused(tmp_path):
     path = tmp_path / "run.npz"
     ck.save(path, ck.identity(ExploreConfig(), np.zeros((1, 3))), _state(), _trace(), 1, 0.0, 0.0)
@@ -72,7 +90,7 @@ def test_another_runs_file_is_refused(tmp_path):
 @pytest.mark.parametrize(
     "like_states, like_trace",
     [
-        (_state(rows=4), _trace()),  # a size changed
+        (State(x=jnp.zeros((3, 5)), n=_state().n, key=_state().key), _trace()),  # a size changed
         (State(x=_state().x, n=_state().n.astype(jnp.float32), key=_state().key), _trace()),  # a type changed
         ((_state(), jnp.zeros(2)), _trace()),  # a field added
         (_state(), Out(t=np.zeros((1, 3), np.float32), pose=np.zeros((1, 3, 3), np.float32))),  # trace robots
@@ -85,6 +103,14 @@ def test_a_file_of_another_layout_is_refused(tmp_path, like_states, like_trace):
         ck.load(tmp_path / "run.npz", run, like_states, like_trace)
 
 
+def test_a_file_saved_on_another_device_count_says_so(tmp_path):
+    """The robots are padded to a multiple of the devices: 3 robots saved, 4 slots here."""
+    run = ck.identity(ExploreConfig(), np.zeros((1, 3)))
+    ck.save(tmp_path / "run.npz", run, _state(rows=3), _trace(), 1, 0.0, 0.0)
+    with pytest.raises(ck.CheckpointError, match="padded to 3 .* pads them to 4.*--devices"):
+        ck.load(tmp_path / "run.npz", run, _state(rows=4), _trace())
+
+
 def test_files_of_no_kind_are_refused_in_one_line(tmp_path):
     run = ck.identity(ExploreConfig(), np.zeros((1, 3)))
     (tmp_path / "text.npz").write_text("not a checkpoint\n")
@@ -92,9 +118,9 @@ def test_files_of_no_kind_are_refused_in_one_line(tmp_path):
     with open(tmp_path / "cut.npz", "wb") as f:  # a checkpoint cut short
         f.write((ck.save(tmp_path / "whole.npz", run, _state(), _trace(), 1, 0.0, 0.0)).read_bytes()[:300])
     for name, match in (("text", "unreadable"), ("other", "not an exploration checkpoint"), ("cut", "unreadable")):
-        with pytest.raises(ValueError, match=match) as e:
+        with pytest.raises(ck.CheckpointError, match=match) as e:
             ck.check(tmp_path / f"{name}.npz", run)
-        assert "\n" not in str(e.value)
+        assert "\n" not in str(e.value) and "unsafe" not in str(e.value)
 
 
 def test_paused_says_where_and_how_far():

@@ -146,6 +146,25 @@ def test_a_paused_run_goes_on_to_the_same_result(run, tmp_path):
     assert again.nodes[0] == run.nodes[0] and again.loops[0] == run.loops[0]
 
 
+@pytest.mark.slow
+def test_cli_pauses_with_status_75_and_goes_on(run, tmp_path, capsys):
+    """`jaxquad explore` with the fixture's settings: paused after a chunk (status 75, nothing written but the
+    checkpoint), then finished from it with the unpaused run's coverage; the checkpoint is removed once the
+    outputs are written."""
+    from jaxquad.cli import main
+    from jaxquad.explore.report import summarize
+
+    ckpt, out = tmp_path / "run.npz", tmp_path / "out"
+    args = ["explore", "--robots", "1", "--seconds", "48", "--samples", "64", "--horizon", "20", "--plot-robots", "1"]
+    args += ["--out", str(out), "--checkpoint", str(ckpt)]
+    assert main([*args, "--wall-budget", "1e-9"]) == 75
+    assert ckpt.exists() and not out.exists() and "paused at 4.8 of 48.0" in capsys.readouterr().err
+    assert main(args) == 0
+    assert not ckpt.exists() and (out / "maps.png").exists()
+    got = json.loads((out / "summary.json").read_text())["coverage"]["per_robot"]
+    assert got == json.loads(to_json(summarize(run, 5.0)))["coverage"]["per_robot"]
+
+
 def test_clear_cells_are_the_reachable_squares_no_box_touches():
     """Against a supersampled reference (11 x 11 points per cell inside a box or not, for the cells whose centre is
     within a cell diagonal of a box) on a generated house; cells a box only grazes (within 6 mm) may go either way."""

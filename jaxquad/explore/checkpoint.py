@@ -4,8 +4,9 @@ A run longer than one sitting (a batch job's time limit, a shared GPU) saves, at
 fleet's whole state and the outputs so far to one `.npz` file; `explore` called again with the same
 configuration and file loads it and runs the remaining chunks, with the same result as a run without the
 pause (the state holds every random key). The file records the configuration and the starts it belongs to:
-another run's file is refused with a one-line error, as is a file whose state no longer fits the code's
-(a field added or a size changed).
+another run's file is refused with a one-line error before any compilation; a file saved on another number
+of devices (the robots are padded to a multiple of them) or whose state no longer fits the code's (a field
+added or a size changed) is refused once the run's state is built.
 """
 
 from __future__ import annotations
@@ -20,8 +21,13 @@ import numpy as np
 from jaxquad.io.atomic import atomic_open
 
 FORMAT = "jaxquad-explore-checkpoint-1"
+PAUSED_STATUS = 75  # a paused command's exit status (sysexits' EX_TEMPFAIL: not done yet, run it again)
 # Settings that change how the run is computed, not what it computes.
 _NOT_IDENTITY = ("devices",)
+
+
+class CheckpointError(ValueError):
+    """A checkpoint file that cannot be resumed: unreadable, of another run, or of another layout."""
 
 
 class Paused(Exception):
@@ -36,9 +42,12 @@ class Paused(Exception):
 
 
 def identity(cfg, starts: np.ndarray) -> str:
-    """The run a checkpoint belongs to: its configuration (less the device split) and its starts, as JSON."""
+    """The run a checkpoint belongs to, as JSON: its configuration (less the device split; the SLAM parameters by
+    their values, not their file's name) and its starts."""
     fields = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in _NOT_IDENTITY}
-    return json.dumps({"config": fields, "starts": np.asarray(starts, np.float64).round(9).tolist()}, sort_keys=True)
+    fields["slam_params"] = cfg.slam_values()
+    starts = np.asarray(starts, np.float64).round(9).tolist()
+    return json.dumps({"config": fields, "starts": starts}, sort_keys=True, default=str)
 
 
 def _is_key(x) -> bool:
@@ -51,7 +60,8 @@ def save(path: str | Path, run_id: str, states, trace, chunks: int, run_s: float
     leaves = jax.device_get([jax.random.key_data(x) if _is_key(x) else x for x in jax.tree.leaves(states)])
     arrays = {f"state_{i}": np.asarray(x) for i, x in enumerate(leaves)}
     arrays |= {f"trace_{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(trace))}
-    meta = {"format": FORMAT, "run": run_id, "chunks": chunks, "run_s": run_s, "compile_s": compile_s}
+    robots = int(jax.tree.leaves(states)[0].shape[0])  # padded to a multiple of the devices
+    meta = {"format": FORMAT, "run": run_id, "robots": robots, "chunks": chunks, "run_s": run_s, "compile_s": compile_s}
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_open(path, "wb") as f:
@@ -74,16 +84,17 @@ def _read(path: Path, run_id: str, arrays: bool) -> tuple[dict, dict]:
             meta = json.loads(str(z["meta"])) if "meta" in z.files else {}
             data = {k: z[k] for k in z.files if k != "meta"} if arrays and meta.get("format") == FORMAT else {}
     except Exception as e:  # noqa: BLE001 - a file of any other kind or a truncated one: say which and why
-        raise ValueError(f"{path}: unreadable checkpoint ({type(e).__name__}: {e})") from None
+        why = str(e).split(". ")[0]  # the reason, without advice on loading untrusted files
+        raise CheckpointError(f"{path}: unreadable checkpoint ({type(e).__name__}: {why})") from None
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise ValueError(f"{path}: not an exploration checkpoint")
+        raise CheckpointError(f"{path}: not an exploration checkpoint")
     if meta.get("run") != run_id:
-        raise ValueError(f"{path}: saved by a run with other settings or starts; remove it to start this run afresh")
+        raise CheckpointError(f"{path}: saved by a run with other settings or starts; remove it to start afresh")
     return meta, data
 
 
 def check(path: str | Path, run_id: str) -> None:
-    """Raise ValueError (one line) unless `path` is a checkpoint of the run `run_id` (reads its header only)."""
+    """Raise CheckpointError (one line) unless `path` is a checkpoint of the run `run_id` (reads its header only)."""
     _read(Path(path), run_id, arrays=False)
 
 
@@ -91,14 +102,19 @@ def load(path: str | Path, run_id: str, like_states, like_trace) -> Checkpoint:
     """The checkpoint at `path`, checked against the run (`identity`) and the state's structure: `like_states`
     is a freshly initialized state (its leaves' shapes, types and placement) and `like_trace` one chunk's
     outputs as kept (arrays or `jax.ShapeDtypeStruct`s: the trace's structure, shapes after time and types).
-    Raises ValueError (one line) on a file of another run or layout."""
+    Raises CheckpointError (one line) on a file of another run, device count or layout."""
     path = Path(path)
     meta, data = _read(path, run_id, arrays=True)
     like, treedef = jax.tree.flatten(like_states)
+    if meta.get("robots") != like[0].shape[0]:
+        raise CheckpointError(
+            f"{path}: saved with the robots padded to {meta.get('robots')} for its device count, where this run "
+            f"pads them to {like[0].shape[0]}: go on with the same number of devices (--devices)"
+        )
     saved = [data.get(f"state_{i}") for i in range(len(like))]
     trace_def = jax.tree.structure(like_trace)
     traces = [data.get(f"trace_{i}") for i in range(trace_def.num_leaves)]
-    misfit = ValueError(f"{path}: its state does not fit this version of jaxquad; remove it to start afresh")
+    misfit = CheckpointError(f"{path}: its state does not fit this version of jaxquad; remove it to start afresh")
     if len(data) != len(like) + len(traces) or any(a is None for a in saved + traces):
         raise misfit
     for a, x in zip(traces, jax.tree.leaves(like_trace)):

@@ -16,9 +16,8 @@ from __future__ import annotations
 
 import argparse
 
+from jaxquad.explore.checkpoint import PAUSED_STATUS
 from jaxquad.explore.report import SUMMARY_KIND
-
-PAUSED_STATUS = 75  # sysexits' EX_TEMPFAIL: not done yet, run again
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -21,7 +21,8 @@ Nothing from ground truth decides anything: the truth only judges. A run ends `c
 footprint overlaps a world box), `lost` (the SLAM pose more than `lost_error` from the truth for
 `lost_time`), `fallen`, or `explored` (finished as above); the robot then stands still and its map
 stays as it was. `coverage` (per tick) is the robot's known-free cells within the true reachable free
-cells over those cells (`ExploreInputs.reachable`, on the SLAM map's cells).
+cells over those cells (`ExploreInputs.reachable`, on the SLAM map's cells); between a loop closure and the
+next planning period it reads the map before its redraw.
 
 `state = init(params, inputs, qpos0, key)`, `state, out = tick(params, state, inputs)`: one robot, pure.
 """
