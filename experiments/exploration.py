@@ -43,6 +43,11 @@ def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     }
 
 
+def _finished_row(args, robot: str, world: str, variant: str) -> Path | None:
+    """Where a cell's finished row is kept (`--checkpoint DIR`/<cell>.json), None without --checkpoint."""
+    return Path(args.checkpoint) / f"{robot}_{world}_{variant}.json" if args.checkpoint else None
+
+
 def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | None = None) -> dict:
     """One cell's row. With `--checkpoint DIR` a finished row is read from DIR/<cell>.json when its settings
     match, and the run is saved to DIR/<cell>.npz (and `checkpoint.Paused` raised) once `wall_budget_s` run out."""
@@ -56,14 +61,13 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
 
     name = f"{robot}_{world}_{variant}"
     settings = _cell_settings(args, robot, world, variant)
-    if args.checkpoint:
-        done = Path(args.checkpoint) / f"{name}.json"
-        if done.exists():
-            saved = json.loads(done.read_text())
-            if saved.get("settings") != settings:
-                raise CheckpointError(f"{done}: a finished cell of other settings; remove it or choose another folder")
-            print(f"{name}: finished earlier ({done})", file=sys.stderr, flush=True)
-            return saved["row"]
+    done = _finished_row(args, robot, world, variant)
+    if done is not None and done.exists():
+        saved = json.loads(done.read_text())
+        if saved.get("settings") != settings:
+            raise CheckpointError(f"{done}: a finished cell of other settings; remove it or choose another folder")
+        print(f"{name}: finished earlier ({done})", file=sys.stderr, flush=True)
+        return saved["row"]
 
     seconds = args.seconds or TARGET_S[world]
     cfg = ExploreConfig(
@@ -81,7 +85,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         devices=args.devices,
     )
     t0 = time.perf_counter()
-    checkpoint = Path(args.checkpoint) / f"{name}.npz" if args.checkpoint else None
+    checkpoint = done.with_suffix(".npz") if done is not None else None
     result = explore(cfg, checkpoint=checkpoint, wall_budget_s=wall_budget_s)
     print(f"{robot} {world} {variant}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
     if args.traces:
@@ -114,7 +118,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         "robot_seconds_per_s": summary["timing"]["robot_seconds_per_s"],
     }
     if checkpoint is not None:
-        atomic_write_text(checkpoint.with_suffix(".json"), to_json({"settings": settings, "row": row}) + "\n")
+        atomic_write_text(done, to_json({"settings": settings, "row": row}) + "\n")
         checkpoint.unlink(missing_ok=True)
     return row
 
@@ -235,7 +239,8 @@ def main() -> int:
             for w in args.worlds:
                 for v in args.variants:
                     left = None if args.wall_budget is None else args.wall_budget - (time.perf_counter() - t_start)
-                    finished = args.checkpoint is not None and (Path(args.checkpoint) / f"{r}_{w}_{v}.json").exists()
+                    row_file = _finished_row(args, r, w, v)
+                    finished = row_file is not None and row_file.exists()
                     if left is not None and left <= 0 and ran and not finished:
                         # the budget went to a cell run in this sitting: the next one starts (and compiles) in the next
                         print(f"paused before {r} {w} {v}; the finished cells are kept in {args.checkpoint}: run the "

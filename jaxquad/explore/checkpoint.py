@@ -57,10 +57,11 @@ def _is_key(x) -> bool:
 def save(path: str | Path, run_id: str, states, trace, chunks: int, run_s: float, compile_s: float) -> Path:
     """Write the fleet's `states` (device pytree), the outputs so far (`trace`: host pytree, time-major) and
     the counters to `path`, atomically (a stopped save leaves the previous file)."""
-    leaves = jax.device_get([jax.random.key_data(x) if _is_key(x) else x for x in jax.tree.leaves(states)])
+    leaves = jax.tree.leaves(states)
+    robots = int(leaves[0].shape[0])  # padded to a multiple of the devices
+    leaves = jax.device_get([jax.random.key_data(x) if _is_key(x) else x for x in leaves])
     arrays = {f"state_{i}": np.asarray(x) for i, x in enumerate(leaves)}
     arrays |= {f"trace_{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(trace))}
-    robots = int(jax.tree.leaves(states)[0].shape[0])  # padded to a multiple of the devices
     meta = {"format": FORMAT, "run": run_id, "robots": robots, "chunks": chunks, "run_s": run_s, "compile_s": compile_s}
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
