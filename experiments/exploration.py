@@ -226,6 +226,8 @@ def main() -> int:
         for flag, folder in (("--figures", args.figures), ("--traces", args.traces), ("--checkpoint", args.checkpoint)):
             if folder:
                 check_output_dir(folder, flag, kind=None)
+        if args.checkpoint:  # finished rows go there, also from a cell that ends in its first sitting
+            Path(args.checkpoint).mkdir(parents=True, exist_ok=True)
     except (ValueError, OSError) as e:
         p.error(str(e))
 

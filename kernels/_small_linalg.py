@@ -13,9 +13,10 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 
-def spd_solve(A: Float[Array, "n n"], b: Float[Array, "n"]) -> Float[Array, "n"]:
+def spd_solve(A: Float[Array, "n n"], b: Float[Array, "n *k"]) -> Float[Array, "n *k"]:
     """x = A^-1 b for a symmetric positive definite A of small static size n, by an unrolled
-    LDL^T factorization (Cholesky without square roots) and two triangular substitutions.
+    LDL^T factorization (Cholesky without square roots) and two triangular substitutions; b is a
+    vector or a matrix of k right-hand sides (its columns).
 
     Only the lower triangle of A is read. No pivoting is needed: for an SPD matrix every pivot d_j is
     a Schur complement's diagonal entry, bounded below by A's smallest eigenvalue, and the
@@ -24,8 +25,8 @@ def spd_solve(A: Float[Array, "n n"], b: Float[Array, "n"]) -> Float[Array, "n"]
     Differentiable (plain arithmetic, no square root); gradients are finite wherever A is SPD.
     """
     n = A.shape[-1]
-    if A.shape != (n, n) or b.shape != (n,):
-        raise ValueError(f"spd_solve expects A (n, n) and b (n,), got {A.shape} and {b.shape}")
+    if A.shape != (n, n) or b.ndim not in (1, 2) or b.shape[0] != n:
+        raise ValueError(f"spd_solve expects A (n, n) and b (n,) or (n, k), got {A.shape} and {b.shape}")
     # A = L D L^T with unit lower-triangular L; L[i][j] for j < i, d[j] the pivots, inv_d their
     # reciprocals (one division per pivot).
     L = [[None] * n for _ in range(n)]
@@ -43,3 +44,10 @@ def spd_solve(A: Float[Array, "n n"], b: Float[Array, "n"]) -> Float[Array, "n"]
     for i in reversed(range(n)):
         x[i] = y[i] * inv_d[i] - sum((L[k][i] * x[k] for k in range(i + 1, n)), 0.0)
     return jnp.stack(x)
+
+
+def spd_inverse(A: Float[Array, "n n"]) -> Float[Array, "n n"]:
+    """A^-1 for a small symmetric positive definite A (`spd_solve` on the identity), made exactly
+    symmetric. Only the lower triangle of A is read."""
+    X = spd_solve(A, jnp.eye(A.shape[-1], dtype=A.dtype))
+    return 0.5 * (X + X.T)

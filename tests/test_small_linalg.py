@@ -1,13 +1,13 @@
-"""spd_solve against numpy.linalg.solve in float64: well-conditioned and near-singular SPD matrices,
-under jit and vmap, gradients against the closed form d(A^-1 b), and a non-SPD matrix flagged by
-non-finite output."""
+"""spd_solve and spd_inverse against numpy.linalg in float64: well-conditioned and near-singular SPD
+matrices, several right-hand sides, under jit and vmap, gradients against the closed form d(A^-1 b),
+and a non-SPD matrix flagged by non-finite output."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxquad.kernels._small_linalg import spd_solve
+from jaxquad.kernels._small_linalg import spd_inverse, spd_solve
 
 _solve = jax.jit(spd_solve)
 _solve_batch = jax.jit(jax.vmap(spd_solve))
@@ -86,9 +86,30 @@ def test_not_positive_definite_is_not_a_finite_answer():
     np.testing.assert_allclose(x, np.linalg.solve(np.array([[1.0, 2.0], [2.0, 1.0]]), [1.0, 0.0]), rtol=1e-6)
 
 
+@pytest.mark.parametrize("n", [1, 3, 4])
+@pytest.mark.parametrize("cond", [10.0, 1e4])
+def test_inverse_and_several_right_hand_sides_match_numpy(n, cond):
+    rng = np.random.default_rng(10 + n)
+    inverse, solve = jax.jit(spd_inverse), jax.jit(spd_solve)
+    for _ in range(20):
+        A = np.asarray(_spd(rng, n, cond) * rng.uniform(0.1, 1e4), np.float32).astype(np.float64)
+        A = 0.5 * (A + A.T)
+        B = rng.standard_normal((n, 5)).astype(np.float32).astype(np.float64)
+        X = np.asarray(inverse(jnp.asarray(A, jnp.float32)), np.float64)
+        ref = np.linalg.inv(A)
+        assert np.array_equal(X, X.T)  # exactly symmetric, as an information or covariance must be
+        assert np.linalg.norm(X - ref) <= 4 * n * cond * 2.0**-23 * np.linalg.norm(ref)
+        Y = np.asarray(solve(jnp.asarray(A, jnp.float32), jnp.asarray(B, jnp.float32)), np.float64)
+        assert Y.shape == (n, 5)
+        ref_Y = np.linalg.solve(A, B)
+        assert np.linalg.norm(Y - ref_Y) <= 4 * n * cond * 2.0**-23 * np.linalg.norm(ref_Y)
+
+
 def test_bad_shapes_raise():
     # Rejected by the explicit check, or first by the tests' runtime shape check (a TypeError).
     with pytest.raises((ValueError, TypeError), match="spd_solve"):
         spd_solve(jnp.eye(3), jnp.ones(4))
     with pytest.raises((ValueError, TypeError), match="spd_solve"):
         spd_solve(jnp.ones((3, 4)), jnp.ones(4))
+    with pytest.raises((ValueError, TypeError), match="spd_solve"):
+        spd_solve(jnp.eye(3), jnp.ones((3, 2, 2)))
