@@ -1,4 +1,4 @@
-"""Solves of tiny symmetric positive definite systems as unrolled elementwise arithmetic.
+"""Solves and inverses of tiny symmetric positive definite systems as unrolled elementwise arithmetic.
 
 `jnp.linalg.solve` on a 3x3 or 4x4 matrix lowers to a batched LU factorization plus triangular
 solves (LAPACK on the CPU, cuSolver/cuBLAS on the GPU: several library calls, each a kernel launch
@@ -47,7 +47,8 @@ def spd_solve(A: Float[Array, "n n"], b: Float[Array, "n *k"]) -> Float[Array, "
 
 
 def spd_inverse(A: Float[Array, "n n"]) -> Float[Array, "n n"]:
-    """A^-1 for a small symmetric positive definite A (`spd_solve` on the identity), made exactly
-    symmetric. Only the lower triangle of A is read."""
+    """A^-1 for a small symmetric positive definite A (`spd_solve` on the identity). Only the lower
+    triangle of A is read. The columns' rounding differs, so the result is made exactly symmetric: an
+    information matrix must be, and so must a preconditioner for conjugate gradients."""
     X = spd_solve(A, jnp.eye(A.shape[-1], dtype=A.dtype))
     return 0.5 * (X + X.T)

@@ -45,7 +45,7 @@ def _matmul(a: Float[Array, "3 3"], b: Float[Array, "3 3"]) -> Float[Array, "3 3
 
 def factor(D: Float[Array, "n 3 3"], U: Float[Array, "n 3 3"]) -> Tridiagonal:
     """Block LDL^T of the symmetric positive definite block-tridiagonal matrix with diagonal `D` and blocks
-    (k-1, k) = `U[k]`."""
+    (k-1, k) = `U[k]`. Each Schur complement's lower triangle is read (it is symmetric in exact arithmetic)."""
 
     def step(S_prev_inv, blocks):
         D_k, U_k = blocks

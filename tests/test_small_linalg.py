@@ -86,7 +86,7 @@ def test_not_positive_definite_is_not_a_finite_answer():
     np.testing.assert_allclose(x, np.linalg.solve(np.array([[1.0, 2.0], [2.0, 1.0]]), [1.0, 0.0]), rtol=1e-6)
 
 
-@pytest.mark.parametrize("n", [1, 3, 4])
+@pytest.mark.parametrize("n", [2, 3, 4])
 @pytest.mark.parametrize("cond", [10.0, 1e4])
 def test_inverse_and_several_right_hand_sides_match_numpy(n, cond):
     rng = np.random.default_rng(10 + n)
@@ -103,6 +103,17 @@ def test_inverse_and_several_right_hand_sides_match_numpy(n, cond):
         assert Y.shape == (n, 5)
         ref_Y = np.linalg.solve(A, B)
         assert np.linalg.norm(Y - ref_Y) <= 4 * n * cond * 2.0**-23 * np.linalg.norm(ref_Y)
+
+
+def test_inverse_reads_the_lower_triangle_and_maps_over_a_batch():
+    rng = np.random.default_rng(4)
+    A = np.stack([_spd(rng, 3, 100.0) for _ in range(16)])
+    garbage = A + np.triu(rng.standard_normal((16, 3, 3)), 1)  # only the strict upper triangle changed
+    X = jax.jit(jax.vmap(spd_inverse))(jnp.asarray(garbage, jnp.float32))
+    np.testing.assert_allclose(X, np.linalg.inv(A), rtol=1e-4, atol=1e-4)
+    B = rng.standard_normal((16, 3, 2))
+    Y = jax.jit(jax.vmap(spd_solve))(jnp.asarray(A, jnp.float32), jnp.asarray(B, jnp.float32))
+    np.testing.assert_allclose(Y, np.linalg.solve(A, B), rtol=1e-4, atol=1e-4)
 
 
 def test_bad_shapes_raise():
