@@ -7,7 +7,7 @@ odometry edges: a block-tridiagonal matrix T, factored exactly as T = (I + L) S 
 block LDL^T. The Schur complements S_k = D_k - U_k^T S_{k-1}^-1 U_k are a sequential `lax.scan`
 once per linearization, its 3x3 inverses and products written out elementwise: `jnp.linalg.inv`
 made a batched LU and triangular solves per step, library calls whose launches were the scan's
-whole cost on a GPU (108.6 -> 4.4 ms for 100 robots x 1202 nodes on an H200). Each application
+whole cost on a GPU (108.6 -> 8.4 ms for 100 robots x 1202 nodes on an H200). Each application
 of T^-1 is two first-order linear recurrences run as associative scans of affine maps (log depth:
 parallel on a GPU, and vmappable).
 """
@@ -21,7 +21,10 @@ from jaxtyping import Array, Float
 
 from jaxquad.kernels._small_linalg import spd_inverse
 
-_UNROLL = 8  # scan steps per loop trip: fewer trips (each one a GPU launch and loop check), same arithmetic
+# One scan step per loop trip. Unrolled 8 steps per trip the factor was 1.9x faster on an H200 (8.4 -> 4.4 ms, 100
+# robots), but XLA's CPU code then rounded differently for different robot counts, and a fleet split over
+# processes no longer drew the same maps as on one device (tests/test_parallel.py).
+_UNROLL = 1
 
 
 class Tridiagonal(eqx.Module):
