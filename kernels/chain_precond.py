@@ -21,11 +21,6 @@ from jaxtyping import Array, Float
 
 from jaxquad.kernels._small_linalg import spd_inverse
 
-# One scan step per loop trip. Unrolled 8 steps per trip the factor was 1.9x faster on an H200 (8.4 -> 4.4 ms, 100
-# robots), but XLA's CPU code then rounded differently for different robot counts, and a fleet split over
-# processes no longer drew the same maps as on one device (tests/test_parallel.py).
-_UNROLL = 1
-
 
 class Tridiagonal(eqx.Module):
     """Factored T: `U[k]` = block (k-1, k) (zero where node k has no odometry edge to k-1), `S_inv[k]`."""
@@ -55,7 +50,10 @@ def factor(D: Float[Array, "n 3 3"], U: Float[Array, "n 3 3"]) -> Tridiagonal:
         S_inv = spd_inverse(D_k - _matmul(U_k.T, _matmul(S_prev_inv, U_k)))
         return S_inv, S_inv
 
-    _, S_inv = jax.lax.scan(step, jnp.zeros_like(D[0]), (D, U), unroll=_UNROLL)
+    # Not unrolled: 8 steps per loop trip made the factor 1.9x faster on an H200 (8.4 -> 4.4 ms, 100 robots), but
+    # XLA's CPU code then rounded differently for different robot counts, and a fleet split over processes no
+    # longer drew the same maps as on one device (tests/test_parallel.py).
+    _, S_inv = jax.lax.scan(step, jnp.zeros_like(D[0]), (D, U))
     return Tridiagonal(U, S_inv)
 
 

@@ -130,7 +130,7 @@ def body_twist(
     dof = jnp.maximum(3.0 * n_stance - 3.0, 0.0)
     sigma2 = (prior_dof * sigma_prior**2 + ssr) / jnp.maximum(prior_dof + dof, 1e-6)
     S_bar = skew(p_bar)
-    D_inv_St = jnp.stack([spd_solve(lhs + w_imu * eye, S_bar[i]) for i in range(3)], -1)  # D^-1 S^T
+    D_inv_St = spd_solve(lhs + w_imu * eye, S_bar.T)  # D^-1 S^T
     cov_v = sigma2 * (eye / total + S_bar @ D_inv_St)
     # No stance foot: v_base is not measured at all (a large but finite variance).
     cov_v = jnp.where(has_feet & finite, cov_v, UNOBSERVED_VAR * eye)
