@@ -130,7 +130,8 @@ def save_traces(path: Path, result) -> None:
     cfg = result.config
     keep = ("t", "error", "active", "coverage", "outcome", "end_t", "distance", "nodes", "loops", "starts")
     arrays = {k: np.asarray(getattr(result, k)) for k in keep}
-    arrays |= {"true_pose": result.true_pose, "pose": result.pose, "robot": cfg.robot, "world": cfg.world}
+    arrays |= {"true_pose": result.true_pose, "pose": result.pose, "goal": result.goal, "mode": result.mode}
+    arrays |= {"robot": cfg.robot, "world": cfg.world}
     arrays |= {"variant": cfg.variant, "seed": cfg.seed, "randomize": cfg.randomize}
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_open(path, "wb") as f:

@@ -2,7 +2,15 @@
 occupancy grids, scan matching, AMCL, costmaps, planning, MPPI, frontiers. `vmap` at the call site."""
 
 from jaxquad.kernels.contact import ContactEstimate, ContactObserver, ObserverParams, ObserverState
-from jaxquad.kernels.costmap import CostGrid, CostmapParams, costmap_from_occupancy, distance_transform, inflation_cost
+from jaxquad.kernels.costmap import (
+    CostGrid,
+    CostmapParams,
+    costmap_from_occupancy,
+    costmap_layers,
+    distance_transform,
+    inflation_cost,
+    inscribed_depth,
+)
 from jaxquad.kernels.floor import FloorParams, FloorState, floor_init, floor_step, stance_height
 from jaxquad.kernels.frontiers import FrontierChoice, FrontierParams, choose_frontier, frontier_mask, label_clusters
 from jaxquad.kernels.icp import Alignment, DepthLevel, IcpParams, align, depth_frame, gauss_newton_step
@@ -105,6 +113,7 @@ __all__ = [
     "choose_frontier",
     "cost_to_go",
     "costmap_from_occupancy",
+    "costmap_layers",
     "depth_frame",
     "descend",
     "distance_at",
@@ -117,6 +126,7 @@ __all__ = [
     "frontier_mask",
     "gauss_newton_step",
     "inflation_cost",
+    "inscribed_depth",
     "init_grid",
     "insert_scan",
     "label_clusters",

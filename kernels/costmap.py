@@ -4,7 +4,9 @@ Cost values follow Nav2's costmap_2d: 254 lethal (an obstacle cell), 253 inscrib
 or with a footprint one of its covering disks' centres, would touch an obstacle), 252 *
 exp(-cost_scaling_factor * (d - inscribed_radius)) out to `inflation_radius`, 0 beyond, and 255 for unknown
 cells that no inflation reaches at 253 or more. d is the Euclidean distance (m) between cell centres, computed
-by an exact distance transform.
+by an exact distance transform. A second layer, `depth`, grades the inscribed zone that the cost leaves flat:
+1 - d / inscribed_radius inside the inscribed radius (1 on an obstacle cell, towards 0 at the radius), 0 beyond,
+so a controller can tell a pose barely inside a safety padding from one against the obstacle.
 
 Occupancy grids are int8: -1 unknown, 0..100 occupancy (`jaxquad.io.OccupancyMap.grid`); a cell is an
 obstacle at `occupied_thresh` and above (65, the map_server's 0.65).
@@ -79,15 +81,30 @@ def inflation_cost(distance: Float[Array, "*S"], params: CostmapParams) -> Float
     return jnp.where(distance <= 0.0, float(LETHAL), cost)
 
 
+def inscribed_depth(distance: Float[Array, "*S"], params: CostmapParams) -> Float[Array, "*S"]:
+    """How far inside the inscribed radius a distance (m) from the nearest obstacle lies, as a fraction of the
+    radius: 1 - distance / inscribed_radius, clipped to 0..1."""
+    return jnp.clip(1.0 - distance / params.inscribed_radius, 0.0, 1.0)
+
+
+def costmap_layers(
+    grid: Int[Array, "H W"], resolution: float | Float[Array, ""], params: CostmapParams
+) -> tuple[Float[Array, "H W"], Float[Array, "H W"]]:
+    """(cost, depth) of an occupancy grid (-1 unknown, 0..100): the cost grid (0..255 as float32) and each
+    cell's depth inside the inscribed radius (0..1), both from one distance transform (see module doc)."""
+    grid = jnp.asarray(grid, jnp.int32)
+    obstacle = grid.astype(jnp.float32) >= params.occupied_thresh
+    distance = distance_transform(obstacle) * resolution
+    cost = inflation_cost(distance, params)
+    # As Nav2 without inflate_unknown: unknown stays unknown unless inflation makes it (at least) inscribed.
+    return jnp.where((grid < 0) & (cost < INSCRIBED), float(UNKNOWN), cost), inscribed_depth(distance, params)
+
+
 def costmap_from_occupancy(
     grid: Int[Array, "H W"], resolution: float | Float[Array, ""], params: CostmapParams
 ) -> Float[Array, "H W"]:
     """Cost grid (0..255 as float32, see module doc) from an occupancy grid (-1 unknown, 0..100)."""
-    grid = jnp.asarray(grid, jnp.int32)
-    obstacle = grid.astype(jnp.float32) >= params.occupied_thresh
-    cost = inflation_cost(distance_transform(obstacle) * resolution, params)
-    # As Nav2 without inflate_unknown: unknown stays unknown unless inflation makes it (at least) inscribed.
-    return jnp.where((grid < 0) & (cost < INSCRIBED), float(UNKNOWN), cost)
+    return costmap_layers(grid, resolution, params)[0]
 
 
 class CostGrid(eqx.Module):
@@ -96,6 +113,7 @@ class CostGrid(eqx.Module):
     cost: Float[Array, "H W"]  # 0..255, see the module doc
     origin: Float[Array, " 2"]  # world x, y (m) of the lower-left corner of cell (0, 0)
     resolution: Float[Array, ""]  # m per cell
+    depth: Float[Array, "H W"] | None = None  # 0..1 inside the inscribed radius (module doc); None: not graded
 
     def cell_of(self, xy: Float[Array, "*S 2"]) -> Int[Array, "*S 2"]:
         """(row, col) of the cell holding each world point (may lie outside the grid)."""
@@ -105,10 +123,20 @@ class CostGrid(eqx.Module):
         """World x, y (m) of cell centres."""
         return self.origin + (rc[..., ::-1].astype(jnp.float32) + 0.5) * self.resolution
 
+    def _lookup(self, layer: Float[Array, "H W"], xy: Float[Array, "*S 2"], outside: float) -> Float[Array, "*S"]:
+        rc = self.cell_of(xy)
+        h, w = layer.shape
+        inside = (rc[..., 0] >= 0) & (rc[..., 0] < h) & (rc[..., 1] >= 0) & (rc[..., 1] < w)
+        value = layer[jnp.clip(rc[..., 0], 0, h - 1), jnp.clip(rc[..., 1], 0, w - 1)]
+        return jnp.where(inside, value, outside)
+
     def cost_at(self, xy: Float[Array, "*S 2"]) -> Float[Array, "*S"]:
         """Cost of the cell under each world point; lethal outside the grid."""
-        rc = self.cell_of(xy)
-        h, w = self.cost.shape
-        inside = (rc[..., 0] >= 0) & (rc[..., 0] < h) & (rc[..., 1] >= 0) & (rc[..., 1] < w)
-        value = self.cost[jnp.clip(rc[..., 0], 0, h - 1), jnp.clip(rc[..., 1], 0, w - 1)]
-        return jnp.where(inside, value, float(LETHAL))
+        return self._lookup(self.cost, xy, float(LETHAL))
+
+    def depth_at(self, xy: Float[Array, "*S 2"]) -> Float[Array, "*S"]:
+        """Depth inside the inscribed radius of the cell under each world point: 1 outside the grid (as on an
+        obstacle), 0 everywhere on a grid without a depth layer."""
+        if self.depth is None:
+            return jnp.zeros(xy.shape[:-1], jnp.float32)
+        return self._lookup(self.depth, xy, 1.0)

@@ -20,9 +20,12 @@ def footprint_cost(
 ) -> Float[Array, "S T"]:
     """Cost of the worst of the footprint's covering disks (centres `p_base_disk` in the base frame, m) at each
     pose: the cell under each disk centre, lethal off the grid."""
+    return jnp.max(grid.cost_at(_disk_centres(traj, p_base_disk)), axis=-1)
+
+
+def _disk_centres(traj: Float[Array, "S T 3"], p_base_disk: Float[Array, "K 2"]) -> Float[Array, "S T K 2"]:
     R_world_base = R2(traj[..., 2])  # (S, T, 2, 2)
-    p_world_disk = traj[..., None, :2] + jnp.einsum("stij,kj->stki", R_world_base, p_base_disk)
-    return jnp.max(grid.cost_at(p_world_disk), axis=-1)
+    return traj[..., None, :2] + jnp.einsum("stij,kj->stki", R_world_base, p_base_disk)
 
 
 def turn_is_clear(
@@ -40,14 +43,19 @@ def obstacle(
     traj: Float[Array, "S T 3"], grid: CostGrid, collision_cost: Float[Array, ""], p_base_disk: Float[Array, "K 2"]
 ) -> Float[Array, " S"]:
     """Mean inflation cost (0..1 of 252) along the trajectory at the worst of the footprint's covering disks
-    (centres `p_base_disk` in the base frame, m; `kernels.footprint.footprint_disks`), plus `collision_cost`
-    if a disk centre enters a cell at inscribed cost or above (lethal, inscribed, unknown or off the map):
-    with the costmap's inscribed radius at the disks' radius, that is the footprint touching an obstacle, to
-    within the grid's resolution (distances run between cell centres)."""
+    (centres `p_base_disk` in the base frame, m; `kernels.footprint.footprint_disks`), plus, if a disk centre
+    enters a cell at inscribed cost or above (lethal, inscribed, unknown or off the map), `collision_cost` x
+    (1 + the deepest and the mean depth inside the inscribed radius along it, each 0..1; `CostGrid.depth`).
+    With the costmap's inscribed radius at the disks' radius that is the footprint touching an obstacle, to
+    within the grid's resolution (distances run between cell centres); with a safety padding on the radius it
+    is entering the padding. The depth grades what a flat collision cost cannot: a robot that has drifted into
+    the padding, where every sample enters it, prefers the samples that leave it soonest and go least deep."""
     cost = footprint_cost(traj, grid, p_base_disk)
     hit = jnp.any(cost >= INSCRIBED, axis=-1)
     soft = jnp.mean(jnp.minimum(cost, INSCRIBED - 1) / (INSCRIBED - 1), axis=-1)
-    return soft + jnp.where(hit, collision_cost, 0.0)
+    depth = jnp.max(grid.depth_at(_disk_centres(traj, p_base_disk)), axis=-1)  # (S, T)
+    graded = 1.0 + jnp.max(depth, axis=-1) + jnp.mean(depth, axis=-1)
+    return soft + jnp.where(hit, collision_cost * graded, 0.0)
 
 
 def goal_distance(

@@ -12,11 +12,12 @@ is satisfied, rather than stopping at the tolerance's edge), where a turn in pla
 obstacles (`critics.turn_is_clear`); elsewhere the sampled commands, scored by the goal critics, go on; it has
 arrived when the yaw error is also inside `goal_yaw_tol` (0.25 m / 0.25 rad, the paper's tolerances).
 
-Stuck recovery (Nav2's progress checker, then a backup behaviour): when the robot has not moved
-`progress_radius` from its last progress point for `progress_timeout`, it backs up at `backup_speed` for
-`recovery_time` if its footprint's disks stay below inscribed cost all along that backup and 0.1 m more,
-otherwise it turns in place at
-`recovery_yaw_rate`; then the nominal sequence restarts from zero.
+Stuck recovery (Nav2's progress checker, then its backup, spin and wait behaviours): when the robot has not
+moved `progress_radius` from its last progress point for `progress_timeout`, for `recovery_time` it backs up at
+`backup_speed` if its footprint's disks stay below inscribed cost all along that backup and 0.1 m more, else
+turns in place at `recovery_yaw_rate` if the turn keeps them off known obstacles (`critics.turn_is_clear`), else
+stands still (in a gap barely wider than the body neither is safe); then the nominal sequence restarts from
+zero.
 """
 
 from __future__ import annotations
@@ -119,6 +120,7 @@ class MppiOutput(eqx.Module):
     cmd: Float[Array, " 3"]  # body-frame vx, vy (m/s), yaw rate (rad/s)
     arrived: Bool[Array, ""]
     recovering: Bool[Array, ""]
+    goal_turn: Bool[Array, ""]  # inside the goal tolerance, turning in place to the goal's yaw (MPPI bypassed)
     valid: Bool[Array, ""]  # False when the pose, goal or path was not finite (then cmd = 0)
     trajectory: Float[Array, "T 3"]  # the chosen sequence's predicted states
     cost: Float[Array, ""]  # its total cost
@@ -200,11 +202,10 @@ def _recovery_command(params: MppiParams, pose, grid: CostGrid) -> Float[Array, 
     along = jnp.linspace(0.0, 1.0, _BACKUP_CHECKS)[:, None] * back * jnp.array([jnp.cos(pose[2]), jnp.sin(pose[2])])
     path = jnp.concatenate([pose[:2] - along, jnp.full((_BACKUP_CHECKS, 1), pose[2])], axis=1)
     can_back = jnp.all(critics.footprint_cost(path[None], grid, params.footprint_disks) < INSCRIBED)
-    return jnp.where(
-        can_back,
-        jnp.array([-1.0, 0.0, 0.0]) * params.backup_speed,
-        jnp.array([0.0, 0.0, 1.0]) * params.recovery_yaw_rate,
-    )
+    can_turn = critics.turn_is_clear(pose, grid, params.footprint_disks)
+    backup_cmd = jnp.array([-1.0, 0.0, 0.0]) * params.backup_speed
+    turn_cmd = jnp.array([0.0, 0.0, 1.0]) * params.recovery_yaw_rate
+    return jnp.where(can_back, backup_cmd, jnp.where(can_turn, turn_cmd, 0.0))
 
 
 def step(params: MppiParams, state: MppiState, inputs: MppiInputs) -> tuple[MppiState, MppiOutput]:
@@ -272,6 +273,7 @@ def step(params: MppiParams, state: MppiState, inputs: MppiInputs) -> tuple[Mppi
         cmd=cmd,
         arrived=arrived & valid,
         recovering=recovering,
+        goal_turn=turning & valid & ~recovering & ~arrived,
         valid=valid,
         trajectory=best,
         cost=jnp.sum(weights * cost),

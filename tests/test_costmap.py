@@ -14,7 +14,9 @@ from jaxquad.kernels.costmap import (
     LETHAL,
     UNKNOWN,
     CostmapParams,
+    CostGrid,
     costmap_from_occupancy,
+    costmap_layers,
     distance_transform,
 )
 
@@ -66,6 +68,34 @@ def test_costmap_matches_loop_reference():
         if v < 0 and want < INSCRIBED:
             want = UNKNOWN
         assert cost[r, c] == pytest.approx(want, rel=1e-5, abs=1e-4), (r, c)
+
+
+def test_depth_layer_grades_the_inscribed_zone():
+    """The depth layer against scipy's distance transform: 1 - d / inscribed radius inside the radius (1 on an
+    obstacle), 0 beyond it and on unknown cells no inflation reaches; the cost layer is costmap_from_occupancy's.
+    A grid without the layer reads depth 0 on the grid, and every grid reads 1 off it."""
+    rng = np.random.default_rng(5)
+    res, radius = 0.05, 0.3
+    grid = np.zeros((40, 52), np.int8)
+    grid[rng.random(grid.shape) < 0.01] = 100
+    grid[20:23, 4:30] = 90
+    grid[:8, 40:] = -1
+    params = CostmapParams.default(inscribed_radius=radius)
+    cost, depth = (np.asarray(a) for a in jax.jit(costmap_layers)(jnp.asarray(grid), res, params))
+    np.testing.assert_array_equal(cost, np.asarray(_costmap(jnp.asarray(grid), res, params)))
+    d = ndimage.distance_transform_edt(grid < 65) * res
+    np.testing.assert_allclose(depth, np.clip(1.0 - d / radius, 0.0, 1.0), atol=1e-6)
+    assert (depth == 1.0).sum() == (grid >= 65).sum() and ((depth > 0) & (depth < 1)).sum() > 100
+    np.testing.assert_array_equal(depth > 0, (cost >= INSCRIBED) & (cost != UNKNOWN) & (d < radius))
+    graded = CostGrid(jnp.asarray(cost), jnp.array([-1.0, 2.0]), jnp.float32(res), jnp.asarray(depth))
+    flat = CostGrid(jnp.asarray(cost), jnp.array([-1.0, 2.0]), jnp.float32(res))
+    xy = np.c_[rng.uniform(-1.5, 2.0, 200), rng.uniform(1.5, 4.5, 200)].astype(np.float32)
+    rc = np.floor((xy[:, ::-1] - [2.0, -1.0]) / res).astype(int)
+    inside = (rc >= 0).all(1) & (rc < grid.shape).all(1)
+    want = np.where(inside, depth[np.clip(rc[:, 0], 0, 39), np.clip(rc[:, 1], 0, 51)], 1.0)
+    assert inside.sum() > 50 and (~inside).sum() > 50
+    np.testing.assert_array_equal(np.asarray(graded.depth_at(jnp.asarray(xy))), want)
+    np.testing.assert_array_equal(np.asarray(flat.depth_at(jnp.asarray(xy))), 0.0)
 
 
 def test_costmap_vmaps_over_robots_with_traced_params():

@@ -14,6 +14,7 @@ from jaxquad.kernels.costmap import (
     CostGrid,
     CostmapParams,
     costmap_from_occupancy,
+    costmap_layers,
 )
 from jaxquad.kernels.footprint import footprint_disks, footprint_overlaps
 from jaxquad.kernels.planner import cost_to_go, descend, step_weights
@@ -23,14 +24,20 @@ RES = 0.05
 PARAMS = mppi.MppiParams.default(n_samples=256, horizon=30)
 
 
-def _world(inscribed_radius: float = 0.2):
-    """4 x 4 m room with walls, a 1 m block in the middle between start and goal."""
+def _room() -> np.ndarray:
+    """4 x 4 m room with walls, a 1 m block in the middle between start and goal (occupancy)."""
     grid = np.zeros((80, 80), np.int8)
     grid[[0, -1], :] = 100
     grid[:, [0, -1]] = 100
     grid[25:55, 35:45] = 100
-    cost = costmap_from_occupancy(jnp.asarray(grid), RES, CostmapParams.default(inscribed_radius=inscribed_radius))
-    return CostGrid(cost=cost, origin=jnp.zeros(2), resolution=jnp.asarray(RES))
+    return grid
+
+
+def _world(inscribed_radius: float = 0.2):
+    """The room's cost grid, with its depth layer."""
+    params = CostmapParams.default(inscribed_radius=inscribed_radius)
+    cost, depth = costmap_layers(jnp.asarray(_room()), RES, params)
+    return CostGrid(cost=cost, origin=jnp.zeros(2), resolution=jnp.asarray(RES), depth=depth)
 
 
 def _plan(grid: CostGrid, start, goal):
@@ -185,6 +192,15 @@ def test_backup_checks_the_footprint():
     np.testing.assert_allclose(cmd[11], [0.0, 0.0, 0.5], atol=1e-7)
     cmd = np.asarray(run(grid, jnp.array([0.575, 2.0, 0.0]), 13)[1])
     np.testing.assert_allclose(cmd[11], [-0.1, 0.0, 0.0], atol=1e-7)
+    # The same 0.575 m from the wall behind, 0.3 m from the wall beside: turning to face along that wall's normal
+    # would swing the rear disk (0.29 m behind the base) into it. Neither backing up nor turning is safe: it waits.
+    from jaxquad.kernels.critics import footprint_cost, turn_is_clear
+
+    corner = jnp.array([0.575, 0.3, 0.0])
+    assert float(footprint_cost(corner[None, None], grid, disks).max()) < INSCRIBED
+    assert not bool(turn_is_clear(corner, grid, disks))
+    rec, cmd = (np.asarray(a) for a in run(grid, corner, 13, disks))
+    assert rec[11] and np.all(cmd[11] == 0.0), cmd[11]
 
 
 @pytest.mark.parametrize("yaw", [0.0, 0.7, -2.5])
@@ -253,9 +269,12 @@ def _wrap(a):
 def test_critics_match_loop_references():
     from jaxquad.kernels import critics
 
+    from scipy import ndimage
+
     rng = np.random.default_rng(4)
     grid = _world()
     cost = np.asarray(grid.cost)
+    depth = np.clip(1.0 - ndimage.distance_transform_edt(_room() < 65) * RES / 0.2, 0.0, 1.0)
     traj = np.c_[rng.uniform(-0.2, 4.2, (6 * 7, 2)), rng.uniform(-4, 4, 6 * 7)].reshape(6, 7, 3).astype(np.float32)
     u = rng.normal(size=(6, 7, 3)).astype(np.float32)
     u_prev = rng.normal(size=3).astype(np.float32)
@@ -273,18 +292,24 @@ def test_critics_match_loop_references():
         "path_heading": critics.path_heading(jnp.asarray(traj), jnp.asarray(carrot), no),
         "smoothness": critics.smoothness(jnp.asarray(u), jnp.asarray(u_prev)),
     }
+    graded_hits = 0
     for s in range(6):
-        cells = []
+        cells, deepest = [], []
         for x, y, th in traj[s]:
-            worst = 0.0
+            worst, deep = 0.0, 0.0
             for dx, dy in disks:  # each disk centre in the world, then its cell
                 px, py = x + math.cos(th) * dx - math.sin(th) * dy, y + math.sin(th) * dx + math.cos(th) * dy
                 r, c = math.floor(py / RES), math.floor(px / RES)
-                worst = max(worst, cost[r, c] if 0 <= r < 80 and 0 <= c < 80 else 254.0)
+                on_grid = 0 <= r < 80 and 0 <= c < 80
+                worst = max(worst, cost[r, c] if on_grid else 254.0)
+                deep = max(deep, depth[r, c] if on_grid else 1.0)
             cells.append(worst)
-        cells = np.array(cells)
+            deepest.append(deep)
+        cells, deepest = np.array(cells), np.array(deepest)
+        graded = 1.0 + deepest.max() + deepest.mean()  # how deep and for how long inside the inscribed radius
+        graded_hits += bool(np.any(cells >= 253) and 1.0 < graded < 3.0)
         want = {
-            "obstacle": np.mean(np.minimum(cells, 252) / 252) + (1000.0 if np.any(cells >= 253) else 0.0),
+            "obstacle": np.mean(np.minimum(cells, 252) / 252) + (1000.0 * graded if np.any(cells >= 253) else 0.0),
             "goal_distance": np.mean([math.dist(p[:2], goal[:2]) for p in traj[s]]),
             "goal_heading": np.mean([abs(_wrap(p[2] - goal[2])) for p in traj[s]]),
             "path_follow": math.dist(traj[s, -1, :2], carrot),
@@ -296,6 +321,7 @@ def test_critics_match_loop_references():
         }
         for name, value in want.items():
             assert float(got[name][s]) == pytest.approx(value, rel=1e-4, abs=1e-5), (name, s)
+    assert graded_hits >= 2  # samples in collision, graded by depth (neither 0 nor all 1)
     # The goal critics are off far from the goal, the path critics near it.
     assert float(jnp.max(critics.goal_distance(jnp.asarray(traj), jnp.asarray(goal), no))) == 0.0
     assert float(jnp.max(critics.path_align(jnp.asarray(traj), jnp.asarray(window), yes))) == 0.0
@@ -303,6 +329,8 @@ def test_critics_match_loop_references():
 
 def test_nominal_is_the_softmax_weighted_mean_of_the_samples():
     """With one sample far better than the rest and a tiny temperature, the new nominal is that sample."""
+    from scipy import ndimage
+
     grid = _world()
     params = mppi.MppiParams.default(n_samples=64, horizon=10, temperature=1e-4)
     pose = jnp.array([1.0, 1.0, 0.0])
@@ -319,7 +347,10 @@ def test_nominal_is_the_softmax_weighted_mean_of_the_samples():
     du = np.diff(np.concatenate([np.zeros((64, 1, 3)), u], axis=1), axis=1)
     cost += w[6] * np.mean(np.sum(du**2, axis=-1), axis=-1)
     cells = np.asarray(grid.cost_at(jnp.asarray(traj[..., :2])))
-    cost += w[0] * np.mean(np.minimum(cells, 252) / 252, axis=-1) + np.where(np.any(cells >= 253, -1), 1000.0, 0.0)
+    rc = np.floor(traj[..., 1::-1] / RES).astype(int)  # the default footprint: one disk at the base
+    depth = np.clip(1.0 - ndimage.distance_transform_edt(_room() < 65) * RES / 0.2, 0.0, 1.0)[rc[..., 0], rc[..., 1]]
+    graded = 1.0 + depth.max(-1) + depth.mean(-1)
+    cost += w[0] * np.mean(np.minimum(cells, 252) / 252, axis=-1) + np.where(np.any(cells >= 253, -1), 1000.0, 0.0) * graded
     best = int(np.argmin(cost))
     np.testing.assert_allclose(np.asarray(out.trajectory), traj[best], atol=1e-4)
     np.testing.assert_allclose(np.asarray(out.cmd), u[best, 0], atol=1e-5)

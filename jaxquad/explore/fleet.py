@@ -36,7 +36,7 @@ from jaxquad.nav.fleet import REPLAN_TICKS, body_params, loop_nav_params
 from jaxquad.nav.fleet_loop import compile_chunk, keep_first, loop_functions, place_robots, start_qpos
 
 VARIANTS = {"full": ("leg", "stabilized", "preintegrated"), "baseline": ("visual", "baseline", "off")}
-TRACED = ("true_pose", "pose", "goal")  # outputs kept for the first `trace_robots` robots only
+TRACED = ("true_pose", "pose", "goal", "mode")  # outputs kept for the first `trace_robots` robots only
 SCAN_RANGE = 8.0  # m, the scans' range limit (the depth camera's); scan matching reads up to match_max_range
 
 
@@ -124,6 +124,8 @@ class ExploreResult:
     active: np.ndarray  # (T, N)
     true_pose: np.ndarray  # (T, n_trace, 3)
     pose: np.ndarray  # (T, n_trace, 3) SLAM pose
+    goal: np.ndarray  # (T, n_trace, 3) the frontier goal, x y yaw
+    mode: np.ndarray  # (T, n_trace) int8: what commanded the robot (loop.MODES)
     compile_s: float
     run_s: float  # wall time of the chunks and of copying their outputs to the host, compilation excluded
     sim_s: float
@@ -321,6 +323,8 @@ def explore(
         active=trace.active[:, :n],
         true_pose=trace.true_pose,
         pose=trace.pose,
+        goal=trace.goal,
+        mode=trace.mode,
         compile_s=compile_s,
         run_s=run_s,
         sim_s=float(trace.t[-1, 0]),

@@ -50,6 +50,11 @@ from jaxquad.nav.body import Body, BodyParams, make_body, pose_error
 
 OUTCOMES = ("running", "explored", "collided", "lost", "fallen")
 RUNNING, EXPLORED, COLLIDED, LOST, FALLEN = range(len(OUTCOMES))
+# What moved the robot on a tick: MPPI along the plan, the turn to the goal's yaw inside its tolerance,
+# standing at the goal, the stuck recovery (backup, turn or wait), the look-around turn without a goal, standing
+# still without a goal where that turn is blocked, or nothing (the run had ended).
+MODES = ("mppi", "goal_turn", "arrived", "recovery", "spin", "wait", "ended")
+MPPI, GOAL_TURN, ARRIVED, RECOVERY, SPIN, WAIT, ENDED = range(len(MODES))
 FREE_BELOW = 20  # map value (0..100) below which a known cell is free: the map format's free_thresh 0.196
 
 
@@ -123,6 +128,7 @@ class ExploreOutput(eqx.Module):
     coverage: Float[Array, "*B"]  # known-free over true reachable free cells
     goal: Float[Array, "*B 3"]  # the frontier goal
     has_goal: Bool[Array, "*B"]
+    mode: Int[Array, "*B"]  # MODES code: what commanded the robot on the tick
     active: Bool[Array, "*B"]  # the run had not ended at the start of the tick
 
 
@@ -192,7 +198,7 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
             body=b,
             slam=slam_state,
             pose=pose,
-            grid=CostGrid(unknown, origin, jnp.asarray(g.resolution, jnp.float32)),
+            grid=CostGrid(unknown, origin, jnp.asarray(g.resolution, jnp.float32), jnp.zeros(shape, jnp.float32)),
             explore=explore.init(shape),
             nav=nav.init(params.nav, pose),
             cmd=jnp.zeros(3),
@@ -230,6 +236,11 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
         can_turn = critics.turn_is_clear(s.pose, grid, params.nav.controller.footprint_disks)
         spin = jnp.array([0.0, 0.0, 1.0]) * jnp.where(can_turn, params.spin_rate, 0.0)
         cmd = jnp.where(ex.has_goal, ctrl.cmd, spin)
+        mode = jnp.select(
+            [~active, ~ex.has_goal & can_turn, ~ex.has_goal, ctrl.recovering, ctrl.arrived, ctrl.goal_turn],
+            [ENDED, SPIN, WAIT, RECOVERY, ARRIVED, GOAL_TURN],
+            MPPI,
+        )
         no_goal_for = jnp.where(ex.has_goal, 0.0, s.no_goal_for + tick_dt)
 
         t, truth = b.sim.t, body.true_pose(b.sim)
@@ -269,6 +280,7 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
             coverage=coverage(occupancy_values(slam_state.grid), inputs.reachable),
             goal=ex.goal,
             has_goal=ex.has_goal,
+            mode=mode.astype(jnp.int8),
             active=active,
         )
 

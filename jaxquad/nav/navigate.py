@@ -17,7 +17,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, Key
 
 from jaxquad.kernels import mppi
-from jaxquad.kernels.costmap import CostGrid, CostmapParams, costmap_from_occupancy
+from jaxquad.kernels.costmap import CostGrid, CostmapParams, costmap_layers
 from jaxquad.kernels.footprint import footprint_disks
 from jaxquad.kernels.planner import cost_to_go, descend, nearest_open_cell, step_weights
 
@@ -89,12 +89,14 @@ def cost_grid(
     origin: Float[Array, " 2"],
     resolution: float | Float[Array, ""],
 ) -> CostGrid:
-    """The inflated cost grid of an occupancy grid (-1 unknown, 0..100) placed at `origin` (lower-left corner)."""
-    cost = costmap_from_occupancy(occupancy, resolution, params.costmap)
+    """The inflated cost grid of an occupancy grid (-1 unknown, 0..100) placed at `origin` (lower-left corner),
+    with its depth layer (MPPI grades a trajectory inside the inscribed radius by it)."""
+    cost, depth = costmap_layers(occupancy, resolution, params.costmap)
     return CostGrid(
         cost=cost,
         origin=jnp.asarray(origin, jnp.float32),
         resolution=jnp.asarray(resolution, jnp.float32),
+        depth=depth,
     )
 
 
