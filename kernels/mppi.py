@@ -190,10 +190,16 @@ def _total_cost(params: MppiParams, traj, u, last_cmd, inputs: MppiInputs, near_
     return sum(w[i] * t for i, t in enumerate(terms))
 
 
-def _toward(params: MppiParams, v_xy: Float[Array, " 2"]) -> Float[Array, " 2"]:
-    """The planar velocity scaled down (direction kept) until it lies within the limits."""
+def toward_pose(
+    params: MppiParams, pose: Float[Array, " 3"], target: Float[Array, " 3"], k_xy: Float[Array, ""], k_yaw
+) -> Float[Array, " 3"]:
+    """Proportional step to a nearby pose: body-frame velocity `k_xy` (1/s) x the position error, scaled down as
+    a whole (direction kept) into the speed limits, and yaw rate `k_yaw` (1/s) x the yaw error, clipped."""
+    v_xy = k_xy * (R2(pose[2]).T @ (target[:2] - pose[:2]))
     lim = jnp.where(v_xy >= 0, params.v_max[:2], -params.v_min[:2])
-    return v_xy * jnp.minimum(1.0, jnp.min(lim / jnp.maximum(jnp.abs(v_xy), 1e-9)))
+    v_xy = v_xy * jnp.minimum(1.0, jnp.min(lim / jnp.maximum(jnp.abs(v_xy), 1e-9)))
+    yaw_rate = jnp.clip(k_yaw * wrap_angle(target[2] - pose[2]), params.v_min[2], params.v_max[2])
+    return jnp.append(v_xy, yaw_rate)
 
 
 def _recovery_command(params: MppiParams, pose, grid: CostGrid) -> Float[Array, " 3"]:
@@ -236,10 +242,7 @@ def step(params: MppiParams, state: MppiState, inputs: MppiInputs) -> tuple[Mppi
     nominal = jnp.einsum("s,stc->tc", weights, u)
     mppi_cmd = nominal[0]
 
-    p_base_goal = R2(pose[2]).T @ (goal[:2] - pose[:2])
-    turn = jnp.append(
-        _toward(params, params.k_xy * p_base_goal), jnp.clip(params.k_yaw * yaw_err, params.v_min[2], params.v_max[2])
-    )
+    turn = toward_pose(params, pose, goal, params.k_xy, params.k_yaw)
     turning = at_xy & critics.turn_is_clear(pose, inputs.grid, params.footprint_disks)
     cmd = jnp.where(arrived, 0.0, jnp.where(turning, turn, mppi_cmd))
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from types import SimpleNamespace
 
 import jax
@@ -17,7 +18,7 @@ from test_nav_closed_loop import _room
 from test_planner import _reference_graph
 
 from jaxquad import nav
-from jaxquad.explore.loop import OUTCOMES, coverage
+from jaxquad.explore.loop import MODES, OUTCOMES, coverage
 from jaxquad.explore.report import coverage_samples
 from jaxquad.io.jsonfile import to_json
 from jaxquad.kernels.occupancy import OccupancyGrid, occupancy_values
@@ -95,6 +96,40 @@ def test_coverage_samples_hold_the_last_tick_at_or_before_each_time():
         np.testing.assert_array_equal(got[s], cov[k])
 
 
+def test_without_a_goal_the_robot_turns_or_holds_where_its_wait_began():
+    """Clear turn: the look-around turn. Blocked: a wait, holding the pose of its first tick by body-frame
+    velocity hold_gain x error (scaled as a whole into the limits) and yaw rate hold_gain x yaw error."""
+    from jaxquad.explore.loop import idle_command
+    from jaxquad.kernels.mppi import MppiParams
+
+    params = (MppiParams.default(), jnp.float32(0.6), jnp.float32(2.0))
+    pose, start = jnp.array([1.0, 2.0, 0.5]), jnp.array([0.9, 2.2, 0.4])
+    cmd, held = idle_command(*params, pose, jnp.array(True), jnp.array(True), start)
+    np.testing.assert_allclose(cmd, [0.0, 0.0, 0.6])  # a clear turn wins over a wait going on
+    np.testing.assert_allclose(held, start)
+    cmd, held = idle_command(*params, pose, jnp.array(False), jnp.array(False), start)  # the wait's first tick
+    np.testing.assert_allclose(held, pose)
+    np.testing.assert_allclose(cmd, 0.0, atol=1e-7)
+    for drifted in ([1.02, 1.99, 0.52], [0.7, 2.1, 0.2]):  # a small drift, and one beyond the speed limits
+        cmd, held = idle_command(*params, jnp.array(drifted), jnp.array(False), jnp.array(True), pose)
+        np.testing.assert_allclose(held, pose)
+        c, s = math.cos(drifted[2]), math.sin(drifted[2])
+        err = np.array(pose[:2]) - drifted[:2]
+        v = 2.0 * np.array([c * err[0] + s * err[1], -s * err[0] + c * err[1]])
+        v *= min(1.0, *(np.where(v >= 0, [0.26, 0.15], [0.15, 0.15]) / np.abs(v)))
+        np.testing.assert_allclose(cmd, [*v, np.clip(2.0 * (0.5 - drifted[2]), -0.8, 0.8)], atol=1e-6)
+
+
+def test_a_run_ends_in_the_mode_of_its_last_command():
+    """The mode of the tick before the last active one (its command moved the robot on the last tick)."""
+    from jaxquad.explore.report import _last_modes
+
+    active = np.array([[1, 1, 0], [1, 1, 0], [1, 0, 0], [1, 0, 0]], bool)  # ended after 4, 2 and 0 ticks
+    mode = np.array([[0, 4, 6], [1, 3, 6], [2, 6, 6], [5, 6, 6]], np.int8)
+    result = SimpleNamespace(active=np.c_[active, active[:, :1]], mode=mode)  # a fourth robot, not traced
+    np.testing.assert_array_equal(_last_modes(result), [2, 4, -1])
+
+
 @pytest.fixture(scope="module")
 def run():
     """One Go2 explores the house (seed 0) for 48 s from its drawn start."""
@@ -119,6 +154,9 @@ def test_small_exploration_grows_its_map(run, tmp_path):
     assert json.loads(to_json(summary))["coverage"]["per_robot"][0] > 0.35  # the final map (after `finish`)
     assert summary["per_robot"][0]["map_scores"]["precision"] > 0.3
     assert summary["coverage_over_time"]["t_s"] == times.tolist()
+    control = summary["per_robot"][0]["control_s"]  # every active tick in one mode
+    assert sum(control.values()) == pytest.approx(run.active[:, 0].sum() * 0.096, rel=1e-4)
+    assert control["mppi"] > 10.0 and summary["per_robot"][0]["mode_at_end"] in MODES
     plot_maps(run, tmp_path / "maps.png")
     plot_coverage(run, tmp_path / "coverage.png", 6.0)
     assert (tmp_path / "maps.png").stat().st_size > 10_000 and (tmp_path / "coverage.png").stat().st_size > 5_000
@@ -141,7 +179,8 @@ def test_a_paused_run_goes_on_to_the_same_result(run, tmp_path):
     seen = []
     again = explore(cfg, checkpoint=path, progress=lambda done, total: seen.append(done))
     assert seen[0] == 9.6 and seen[-1] == 48.0
-    for name in ("t", "coverage", "error", "active", "true_pose", "pose", "outcome", "end_t", "distance", "maps"):
+    names = ("t", "coverage", "error", "active", "true_pose", "pose", "goal", "mode", "outcome", "end_t", "distance")
+    for name in (*names, "maps"):
         np.testing.assert_array_equal(getattr(again, name), getattr(run, name), err_msg=name)
     assert again.nodes[0] == run.nodes[0] and again.loops[0] == run.loops[0]
 

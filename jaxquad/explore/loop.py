@@ -13,8 +13,9 @@ becomes a costmap, `jaxquad.nav.explore.update` picks the nearest reachable
 frontier (progress check and blacklist included) and the plan to it is read off the robot's own
 cost-to-go (`nav.plan_from_start`). Between plans MPPI follows it on that costmap. Without a frontier
 goal the robot turns in place (`spin_rate`) to look around: at the start, before its map has free
-cells, and when exploration seems done; it stands still instead where the turn would bring its footprint
-onto a known obstacle of the costmap (`kernels.critics.turn_is_clear`). Exploration is finished when no
+cells, and when exploration seems done; where the turn would bring its footprint onto a known obstacle of
+the costmap (`kernels.critics.turn_is_clear`) it waits instead, holding the SLAM pose where the wait began
+(`hold_gain`: a trotting gait told to stand still drifts, by centimetres a second). Exploration is finished when no
 frontier has been found for `finish_time` seconds.
 
 Nothing from ground truth decides anything: the truth only judges. A run ends `collided` (the base
@@ -40,7 +41,7 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from jaxquad import slam
 from jaxquad.estimate.laser import planar_twist
-from jaxquad.kernels import critics
+from jaxquad.kernels import critics, mppi
 from jaxquad.kernels.costmap import CostGrid
 from jaxquad.kernels.occupancy import occupancy_values
 from jaxquad.kernels.scan import BAND_REDUCTIONS
@@ -90,6 +91,7 @@ class ExploreLoopParams(eqx.Module):
     body: BodyParams
     yaw_rate_std: Float[Array, ""]  # rad/s, std of the leg-odometry yaw rate (the SLAM's leg edges)
     spin_rate: Float[Array, ""]  # rad/s, turning in place without a frontier goal
+    hold_gain: Float[Array, ""]  # 1/s, velocity per m (and yaw rate per rad) back to the pose where a wait began
     finish_time: Float[Array, ""]  # s without a frontier (turning) before exploration counts as finished
     lost_error: Float[Array, ""]  # m
     lost_time: Float[Array, ""]  # s
@@ -110,6 +112,8 @@ class ExploreLoopState(eqx.Module):
     explore: explore.ExploreState
     nav: nav.NavState
     cmd: Float[Array, " 3"]  # body command to the gait controller
+    waiting: Bool[Array, ""]  # no frontier goal and no clear turn: holding `held_at`
+    held_at: Float[Array, " 3"]  # the SLAM pose where the wait began
     no_goal_for: Float[Array, ""]  # s since a frontier goal was last found
     lost_for: Float[Array, ""]  # s the SLAM pose error has stayed above lost_error
     distance: Float[Array, ""]  # m walked (true path, in the plane)
@@ -141,6 +145,23 @@ def coverage(values: Int[Array, "H W"], reachable: Bool[Array, "H W"]) -> Float[
     """Known-free cells (0 <= value < FREE_BELOW) among the `reachable` cells, over their count."""
     free = (values >= 0) & (values < FREE_BELOW) & reachable
     return jnp.sum(free) / jnp.maximum(jnp.sum(reachable), 1)
+
+
+def idle_command(
+    controller: mppi.MppiParams,
+    spin_rate: Float[Array, ""],
+    hold_gain: Float[Array, ""],
+    pose: Float[Array, " 3"],
+    can_turn: Bool[Array, ""],
+    waiting: Bool[Array, ""],
+    held_at: Float[Array, " 3"],
+) -> tuple[Float[Array, " 3"], Float[Array, " 3"]]:
+    """(command, pose held) without a frontier goal: turn in place at `spin_rate` (rad/s) where the turn is clear,
+    else wait, holding the SLAM pose where the wait began (`pose` on its first tick, `held_at` after: a trotting
+    gait told to stand still drifts) by a proportional step (`hold_gain`, 1/s, within `controller`'s limits)."""
+    held_at = jnp.where(waiting, held_at, pose)
+    hold = mppi.toward_pose(controller, pose, held_at, hold_gain, hold_gain)
+    return jnp.where(can_turn, jnp.array([0.0, 0.0, 1.0]) * spin_rate, hold), held_at
 
 
 def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
@@ -202,6 +223,8 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
             explore=explore.init(shape),
             nav=nav.init(params.nav, pose),
             cmd=jnp.zeros(3),
+            waiting=jnp.array(False),
+            held_at=pose,
             no_goal_for=jnp.zeros(()),
             lost_for=jnp.zeros(()),
             distance=jnp.zeros(()),
@@ -234,8 +257,12 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
             params.nav, nav_state, nav.NavInputs(pose=s.pose, goal=ex.goal, grid=grid, key=k_nav)
         )
         can_turn = critics.turn_is_clear(s.pose, grid, params.nav.controller.footprint_disks)
-        spin = jnp.array([0.0, 0.0, 1.0]) * jnp.where(can_turn, params.spin_rate, 0.0)
-        cmd = jnp.where(ex.has_goal, ctrl.cmd, spin)
+        ctrl_params = params.nav.controller
+        idle, held_at = idle_command(
+            ctrl_params, params.spin_rate, params.hold_gain, s.pose, can_turn, s.waiting, s.held_at
+        )
+        waiting = ~ex.has_goal & ~can_turn
+        cmd = jnp.where(ex.has_goal, ctrl.cmd, idle)
         mode = jnp.select(
             [~active, ~ex.has_goal & can_turn, ~ex.has_goal, ctrl.recovering, ctrl.arrived, ctrl.goal_turn],
             [ENDED, SPIN, WAIT, RECOVERY, ARRIVED, GOAL_TURN],
@@ -265,6 +292,8 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
             explore=ex,
             nav=nav_state,
             cmd=jnp.where(still, cmd, 0.0),
+            waiting=waiting,
+            held_at=held_at,
             no_goal_for=no_goal_for,
             lost_for=lost_for,
             distance=s.distance + jnp.where(active, jnp.hypot(*(truth[:2] - before[:2])), 0.0),

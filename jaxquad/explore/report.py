@@ -8,7 +8,9 @@ cell a box's face passes through holds range returns, and no range-sensor map ca
 time, held after a run ended); the map scores of each final map against the true map
 (`jaxquad.metrics.map_scores`: occupied-cell IoU, precision, recall within one cell); outcome
 counts and per-robot flags (explored, collided, lost, fallen); distance walked; the SLAM position
-error; timing (compilation apart).
+error; for the traced robots, the seconds spent in each control mode (`loop.MODES`: MPPI, the goal turn,
+standing at the goal, recovery, the look-around turn, waiting) and the mode of each run's last tick, counted
+over the collided runs in `collided_while`; timing (compilation apart).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import dataclasses
 
 import numpy as np
 
-from jaxquad.explore.loop import OUTCOMES, coverage
+from jaxquad.explore.loop import COLLIDED, MODES, OUTCOMES, coverage
 from jaxquad.nav.report import timing
 
 SUMMARY_KIND = "jaxquad explore"
@@ -54,6 +56,14 @@ def _final_coverage(result, cells=None) -> np.ndarray:
     return np.array([float(coverage(jnp.asarray(m), cells)) for m in result.maps])
 
 
+def _last_modes(result) -> np.ndarray:
+    """(n_trace,) the mode each traced robot's run ended in (-1: never active): that of the tick before its last,
+    whose command the robot was executing on its last tick."""
+    active = result.active[:, : result.mode.shape[1]]
+    last = np.maximum(active.shape[0] - 2 - np.argmax(active[::-1], axis=0), 0)
+    return np.where(active.any(axis=0), result.mode[last, np.arange(active.shape[1])], -1)
+
+
 def final_maps(result) -> list:
     from jaxquad.io.maps import OccupancyMap
 
@@ -69,6 +79,8 @@ def summarize(result, every: float = 5.0) -> dict:
     final_clear = _final_coverage(result, result.clear)
     scores = [dataclasses.asdict(map_scores(m, result.truth)) for m in final_maps(result)]
     times, cov_t = coverage_samples(result, every)
+    n_trace, tick_s = result.mode.shape[1], float(np.diff(result.t[:2]).sum()) if len(result.t) > 1 else 0.0
+    last_mode = _last_modes(result)
     per_robot = []
     for i in range(n):
         err = result.error[result.active[:, i], i]
@@ -89,6 +101,10 @@ def summarize(result, every: float = 5.0) -> dict:
                 "map_scores": scores[i],
             }
         )
+        if i < n_trace:
+            mode = result.mode[result.active[:, i], i]
+            per_robot[-1]["control_s"] = {m: float((mode == k).sum() * tick_s) for k, m in enumerate(MODES[:-1])}
+            per_robot[-1]["mode_at_end"] = MODES[last_mode[i]] if last_mode[i] >= 0 else None
     iou = np.array([s["iou"] for s in scores], np.float64)
     return {
         "kind": SUMMARY_KIND,
@@ -109,6 +125,9 @@ def summarize(result, every: float = 5.0) -> dict:
         },
         "map_iou": _stats(iou),
         "outcomes": {name: int((result.outcome == code).sum()) for code, name in enumerate(OUTCOMES)},
+        "collided_while": {
+            m: int(((result.outcome[:n_trace] == COLLIDED) & (last_mode == k)).sum()) for k, m in enumerate(MODES[:-1])
+        },
         "distance_m": _stats(result.distance),
         "slam_error_m": _stats(result.error[result.active]),
         "timing": timing(result, n),
