@@ -8,14 +8,15 @@ the occupied-cell IoU of the final maps, outcome counts (explored, collided, los
 speed. It prints the rows as JSON (`--json` also writes them) and a Markdown table, and draws
 `coverage_vs_time.png` in `--figures` (mean and 10-90 % band per variant; a panel per robot and world).
 `--traces DIR` also keeps every run's path and writes `<robot>_<world>_<variant>.npz` per cell (times,
-SLAM position error, true and SLAM poses, outcomes, loop closures): `experiments/exploration_errors.py`
+SLAM position error, true and SLAM poses, goals, control modes, outcomes, loop closures):
+`experiments/exploration_errors.py`
 draws the SLAM's error over time from it. Runs longer than one sitting: with `--checkpoint DIR --wall-budget S`
 the script saves the running cell to DIR after S s of wall time and exits with status 75; the same command
 again goes on from there (finished cells are kept in DIR as `<cell>.json` and not run again).
 
     python experiments/exploration.py [--runs 100] [--robots go2 badger] [--worlds house warehouse]
         [--variants baseline full] [--seconds T] [--seed 0] [--samples 256] [--horizon 30]
-        [--json rows.json] [--figures DIR] [--traces DIR] [--checkpoint DIR --wall-budget S]
+        [--slam-params FILE] [--json rows.json] [--figures DIR] [--traces DIR] [--checkpoint DIR --wall-budget S]
 
 Without `--seconds` each world runs its target time: 600 s in the house, 900 s in the warehouse.
 """
@@ -37,8 +38,11 @@ GOAL = 0.95  # coverage a run should reach
 
 def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     """What a cell's row depends on: a finished row in --checkpoint is reused only for the same settings."""
+    from jaxquad.slam import load_params
+
     keep = ("runs", "seconds", "seed", "samples", "horizon", "every", "band_height", "band_reduce")
-    return {"robot": robot, "world": world, "variant": variant, "traces": args.traces} | {
+    slam = load_params(args.slam_params) if args.slam_params else None  # the values: an edited file is another cell
+    return {"robot": robot, "world": world, "variant": variant, "traces": args.traces, "slam_params": slam} | {
         k: getattr(args, k) for k in keep
     }
 
@@ -81,6 +85,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         horizon=args.horizon,
         band_height=args.band_height,
         band_reduce=args.band_reduce,
+        slam_params=args.slam_params,
         trace_robots=args.runs if args.traces else 4,
         devices=args.devices,
     )
@@ -201,6 +206,9 @@ def main() -> int:
     p.add_argument("--every", type=float, default=5.0, help="coverage sampling period, s (default 5)")
     p.add_argument("--band-height", type=int, default=1, help="scan band height in px (default 1)")
     add_band_reduce_argument(p)
+    p.add_argument(
+        "--slam-params", default=None, help="SLAM parameter file overriding jaxquad/slam/slam.yaml (default: none)"
+    )
     p.add_argument(
         "--devices", type=int, default=None, help="split each cell's robots over the first N devices (default all)"
     )

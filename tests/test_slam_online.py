@@ -270,9 +270,22 @@ def test_params_file_checks(tmp_path):
         ("loop_ambiguity_ratio: 2\n", "out of range"),
         ("resolution: .nan\n", "finite"),
         ("robust_loop_edges: 2\n", "0 or 1"),
+        ("occupancy_miss_probability: 0.5\n", "occupancy_hit_probability must lie in"),
+        ("occupancy_hit_probability: 0.3\n", "occupancy_hit_probability must lie in"),
     ]:
         p.write_text(text)
         with pytest.raises(ValueError, match=words):
             load_params(p)
     with pytest.raises(ValueError, match="lo_constraints"):
         SlamSpec(grid=GRID, lo_constraints="odometry")
+    # The map's inverse sensor model as log-odds: the defaults are the grid's own, a file's values their logits.
+    from jaxquad.kernels.occupancy import OccupancyParams
+    from jaxquad.slam.params import slam_config
+
+    occ = slam_config(values, GRID, "off")[1].occupancy
+    assert float(occ.l_occ) == pytest.approx(float(OccupancyParams().l_occ), rel=1e-6)
+    assert float(occ.l_free) == pytest.approx(float(OccupancyParams().l_free), rel=1e-6)
+    occ = slam_config(values | {"occupancy_hit_probability": 0.8, "occupancy_miss_probability": 0.3}, GRID, "off")[1]
+    assert float(occ.occupancy.l_occ) == pytest.approx(np.log(4.0)) and float(occ.occupancy.l_free) == pytest.approx(
+        np.log(3.0 / 7.0)
+    )

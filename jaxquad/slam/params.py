@@ -92,9 +92,18 @@ def load_params(path: str | os.PathLike | None = None, laser: bool = False) -> d
     for key in ("robust_match_links", "robust_loop_edges"):
         if values[key] not in (0, 1):
             raise ValueError(f"params file {source}: {key} must be 0 or 1, got {values[key]!r}")
+    if not (0.5 < values["occupancy_hit_probability"] < 1.0 and 0.0 < values["occupancy_miss_probability"] < 0.5):
+        raise ValueError(
+            f"params file {source}: occupancy_hit_probability must lie in (0.5, 1) and occupancy_miss_probability"
+            " in (0, 0.5)"
+        )
     if values["loop_chain_scans"] < 1 or values["coarse_angle_resolution"] > values["coarse_search_angle_offset"]:
         raise ValueError(f"params file {source}: coarse_angle_resolution must not exceed coarse_search_angle_offset")
     return values
+
+
+def _logit(p: float) -> float:
+    return math.log(p / (1.0 - p))
 
 
 def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=(0.0, 0.0, 0.0)):
@@ -144,7 +153,11 @@ def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=
             ambiguity_ratio=f(v["loop_ambiguity_ratio"]),
             max_position_std=f(v["loop_match_maximum_std"]),
         ),
-        occupancy=OccupancyParams(range_max=f(v["max_laser_range"])),
+        occupancy=OccupancyParams(
+            l_free=f(_logit(v["occupancy_miss_probability"])),
+            l_occ=f(_logit(v["occupancy_hit_probability"])),
+            range_max=f(v["max_laser_range"]),
+        ),
         solver=SolverParams(robust_width=f(v["robust_width"]), max_iterations=jnp.asarray(v["solver_max_iterations"])),
         T_base_laser=f(T_base_laser),
         min_travel=f(v["minimum_travel_distance"]),
