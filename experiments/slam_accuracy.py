@@ -3,12 +3,13 @@
     python experiments/slam_accuracy.py [--robot go2 --robot badger] [--world house --world warehouse]
         [--robots 2] [--seconds 10] [--style aggressive] [--contacts truth] [--scan-hz 10]
         [--lo-constraints off velocity preintegrated] [--band-reduce median] [--throughput 1 4096] [--devices 1 2]
-        [--json rows.json]
+        [--params slam.yaml] [--json rows.json]
 
 For each robot and world it simulates a fleet (`jaxquad.sim.rollout`, depth on, `--robots` robots in
 up to 4 distinct worlds), runs the estimator once (leg-inertial odometry with `--contacts`, the
 stabilized scans at `--scan-hz`, each ray the `--band-reduce` of its 5-pixel band), then the online
-SLAM (`jaxquad.slam`, the default parameters of slam.yaml) once per constraint kind on the same scans.
+SLAM (`jaxquad.slam`, the parameters of slam.yaml, overridden by `--params`) once per constraint kind on the same
+scans.
 Printed as Markdown, means +- std over the fleet's robots: ATE (m, SE(3)-aligned, evo's definition)
 of the odometry alone, of the online SLAM pose at each scan and of the final (after the last
 optimization) trajectory; occupied-cell IoU, precision and recall of the final map against the true
@@ -57,7 +58,7 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list, edge_rows: 
     )
     log = rollout(config, args.seconds, progress=True)
     maps = log.maps()
-    values = load_params()
+    values = load_params(args.params)
     x = laser_inputs(
         log,
         "stabilized",
@@ -164,6 +165,7 @@ def main() -> None:
         help="contact source of the leg odometry (default truth)",
     )
     p.add_argument("--scan-hz", type=float, default=10.0, help="scans per second fed to the SLAM (default 10)")
+    p.add_argument("--params", default=None, help="SLAM parameter file over jaxquad/slam/slam.yaml (default: none)")
     p.add_argument(
         "--lo-constraints",
         nargs="+",
