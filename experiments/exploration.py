@@ -57,6 +57,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
     match, and the run is saved to DIR/<cell>.npz (and `checkpoint.Paused` raised) once `wall_budget_s` run out."""
     import jax
 
+    from jaxquad.cli import progress_bar
     from jaxquad.explore import ExploreConfig, explore
     from jaxquad.explore.checkpoint import CheckpointError
     from jaxquad.explore.report import coverage_samples, summarize
@@ -91,7 +92,8 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
     )
     t0 = time.perf_counter()
     checkpoint = done.with_suffix(".npz") if done is not None else None
-    result = explore(cfg, checkpoint=checkpoint, wall_budget_s=wall_budget_s)
+    with progress_bar(name, "sim s") as progress:
+        result = explore(cfg, checkpoint=checkpoint, wall_budget_s=wall_budget_s, progress=progress)
     print(f"{robot} {world} {variant}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
     if args.traces:
         save_traces(Path(args.traces) / f"{name}.npz", result)
@@ -119,6 +121,8 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         "distance_m": summary["distance_m"],
         "slam_error_m": summary["slam_error_m"],
         "compile_s": result.compile_s,
+        "run_s": result.run_s,
+        "chunk_s": summary["timing"]["chunk_s"],
         "devices": args.devices or jax.local_device_count(),
         "robot_seconds_per_s": summary["timing"]["robot_seconds_per_s"],
     }

@@ -40,7 +40,7 @@ def _trace(ticks=5):
 def test_round_trip_keeps_values_types_and_random_keys(tmp_path):
     run = ck.identity(ExploreConfig(), np.zeros((2, 3)))
     states, trace = _state(1), _trace()
-    ck.save(tmp_path / "run.npz", run, states, trace, chunks=4, run_s=12.5, compile_s=3.0)
+    ck.save(tmp_path / "run.npz", run, states, trace, chunks=4, chunk_s=[2.5, 3.0, 3.5, 3.5], compile_s=3.0)
     got = ck.load(tmp_path / "run.npz", run, _state(0), _trace(1))
     np.testing.assert_array_equal(got.states.x, states.x)
     np.testing.assert_array_equal(got.states.n, states.n)
@@ -48,7 +48,7 @@ def test_round_trip_keeps_values_types_and_random_keys(tmp_path):
     # the keys draw what the saved ones draw
     np.testing.assert_array_equal(jax.random.uniform(got.states.key[2]), jax.random.uniform(states.key[2]))
     np.testing.assert_array_equal(got.trace.t, trace.t)
-    assert (got.chunks, got.run_s, got.compile_s) == (4, 12.5, 3.0)
+    assert (got.chunks, got.chunk_s, got.compile_s) == (4, [2.5, 3.0, 3.5, 3.5], 3.0)
 
 
 def test_identity_tells_runs_apart_but_not_the_device_split():
@@ -79,7 +79,7 @@ def test_identity_holds_the_slam_parameters_by_value(tmp_path):
 
 def test_another_runs_file_is_refused(tmp_path):
     path = tmp_path / "run.npz"
-    ck.save(path, ck.identity(ExploreConfig(), np.zeros((1, 3))), _state(), _trace(), 1, 0.0, 0.0)
+    ck.save(path, ck.identity(ExploreConfig(), np.zeros((1, 3))), _state(), _trace(), 1, [0.0], 0.0)
     other = ck.identity(ExploreConfig(seed=1), np.zeros((1, 3)))
     with pytest.raises(ValueError, match="other settings or starts"):
         ck.check(path, other)
@@ -98,7 +98,7 @@ def test_another_runs_file_is_refused(tmp_path):
 )
 def test_a_file_of_another_layout_is_refused(tmp_path, like_states, like_trace):
     run = ck.identity(ExploreConfig(), np.zeros((1, 3)))
-    ck.save(tmp_path / "run.npz", run, _state(), _trace(), 1, 0.0, 0.0)
+    ck.save(tmp_path / "run.npz", run, _state(), _trace(), 1, [0.0], 0.0)
     with pytest.raises(ValueError, match="does not fit"):
         ck.load(tmp_path / "run.npz", run, like_states, like_trace)
 
@@ -106,7 +106,7 @@ def test_a_file_of_another_layout_is_refused(tmp_path, like_states, like_trace):
 def test_a_file_saved_on_another_device_count_says_so(tmp_path):
     """The robots are padded to a multiple of the devices: 3 robots saved, 4 slots here."""
     run = ck.identity(ExploreConfig(), np.zeros((1, 3)))
-    ck.save(tmp_path / "run.npz", run, _state(rows=3), _trace(), 1, 0.0, 0.0)
+    ck.save(tmp_path / "run.npz", run, _state(rows=3), _trace(), 1, [0.0], 0.0)
     with pytest.raises(ck.CheckpointError, match="padded to 3 .* pads them to 4.*--devices"):
         ck.load(tmp_path / "run.npz", run, _state(rows=4), _trace())
 
@@ -116,7 +116,7 @@ def test_files_of_no_kind_are_refused_in_one_line(tmp_path):
     (tmp_path / "text.npz").write_text("not a checkpoint\n")
     np.savez(tmp_path / "other.npz", a=np.zeros(3))
     with open(tmp_path / "cut.npz", "wb") as f:  # a checkpoint cut short
-        f.write((ck.save(tmp_path / "whole.npz", run, _state(), _trace(), 1, 0.0, 0.0)).read_bytes()[:300])
+        f.write((ck.save(tmp_path / "whole.npz", run, _state(), _trace(), 1, [0.0], 0.0)).read_bytes()[:300])
     for name, match in (("text", "unreadable"), ("other", "not an exploration checkpoint"), ("cut", "unreadable")):
         with pytest.raises(ck.CheckpointError, match=match) as e:
             ck.check(tmp_path / f"{name}.npz", run)

@@ -157,6 +157,8 @@ def test_small_exploration_grows_its_map(run, tmp_path):
     control = summary["per_robot"][0]["control_s"]  # every active tick in one mode
     assert sum(control.values()) == pytest.approx(run.active[:, 0].sum() * 0.096, rel=1e-4)
     assert control["mppi"] > 10.0 and summary["per_robot"][0]["mode_at_end"] in MODES
+    chunks = summary["timing"]["chunk_s"]  # 48 s in chunks of 4.8 s, each timed
+    assert len(chunks) == 10 and min(chunks) > 0 and sum(chunks) == pytest.approx(run.run_s, rel=1e-3, abs=0.01)
     plot_maps(run, tmp_path / "maps.png")
     plot_coverage(run, tmp_path / "coverage.png", 6.0)
     assert (tmp_path / "maps.png").stat().st_size > 10_000 and (tmp_path / "coverage.png").stat().st_size > 5_000
@@ -183,6 +185,7 @@ def test_a_paused_run_goes_on_to_the_same_result(run, tmp_path):
     for name in (*names, "maps"):
         np.testing.assert_array_equal(getattr(again, name), getattr(run, name), err_msg=name)
     assert again.nodes[0] == run.nodes[0] and again.loops[0] == run.loops[0]
+    assert len(again.chunk_s) == 10  # the chunks of every sitting
 
 
 @pytest.mark.slow

@@ -20,7 +20,7 @@ import numpy as np
 
 from jaxquad.io.atomic import atomic_open
 
-FORMAT = "jaxquad-explore-checkpoint-1"
+FORMAT = "jaxquad-explore-checkpoint-2"
 PAUSED_STATUS = 75  # a paused command's exit status (sysexits' EX_TEMPFAIL: not done yet, run it again)
 # Settings that change how the run is computed, not what it computes.
 _NOT_IDENTITY = ("devices",)
@@ -54,15 +54,18 @@ def _is_key(x) -> bool:
     return jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
 
 
-def save(path: str | Path, run_id: str, states, trace, chunks: int, run_s: float, compile_s: float) -> Path:
-    """Write the fleet's `states` (device pytree), the outputs so far (`trace`: host pytree, time-major) and
-    the counters to `path`, atomically (a stopped save leaves the previous file)."""
+def save(path: str | Path, run_id: str, states, trace, chunks: int, chunk_s: list, compile_s: float) -> Path:
+    """Write the fleet's `states` (device pytree), the outputs so far (`trace`: host pytree, time-major), the
+    chunk count, each chunk's wall time (s) and the compilation time to `path`, atomically (a stopped save leaves
+    the previous file)."""
     leaves = jax.tree.leaves(states)
     robots = int(leaves[0].shape[0])  # padded to a multiple of the devices
     leaves = jax.device_get([jax.random.key_data(x) if _is_key(x) else x for x in leaves])
     arrays = {f"state_{i}": np.asarray(x) for i, x in enumerate(leaves)}
     arrays |= {f"trace_{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(trace))}
-    meta = {"format": FORMAT, "run": run_id, "robots": robots, "chunks": chunks, "run_s": run_s, "compile_s": compile_s}
+    chunk_s = [float(x) for x in chunk_s]
+    meta = {"format": FORMAT, "run": run_id, "robots": robots, "chunks": chunks, "chunk_s": chunk_s}
+    meta["compile_s"] = compile_s
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_open(path, "wb") as f:
@@ -75,7 +78,7 @@ class Checkpoint:
     states: object  # the fleet's state, placed as the template's
     trace: object  # outputs of the chunks run so far (host, time-major)
     chunks: int  # chunks run so far
-    run_s: float  # wall time of those chunks, all sittings
+    chunk_s: list  # wall time of each of those chunks (s), all sittings
     compile_s: float  # compilation time, all sittings
 
 
@@ -132,6 +135,6 @@ def load(path: str | Path, run_id: str, like_states, like_trace) -> Checkpoint:
         states=jax.tree.unflatten(treedef, leaves),
         trace=jax.tree.unflatten(trace_def, traces),
         chunks=int(meta["chunks"]),
-        run_s=float(meta["run_s"]),
+        chunk_s=[float(x) for x in meta["chunk_s"]],
         compile_s=float(meta["compile_s"]),
     )

@@ -128,6 +128,7 @@ class ExploreResult:
     mode: np.ndarray  # (T, n_trace) int8: what commanded the robot (loop.MODES)
     compile_s: float
     run_s: float  # wall time of the chunks and of copying their outputs to the host, compilation excluded
+    chunk_s: np.ndarray  # (K,) that wall time per chunk, s, over all sittings
     sim_s: float
 
 
@@ -282,10 +283,10 @@ def explore(
     n_chunks = max(1, math.ceil(cfg.seconds / (cfg.chunk_ticks * tick_dt) - 1e-9))
     chunk_s = lambda k: round(min(cfg.seconds, k * cfg.chunk_ticks * tick_dt), 1)  # noqa: E731
     n_trace = min(cfg.trace_robots, n)
-    outs, run_s, k0 = [], 0.0, 0
+    outs, chunk_wall, k0 = [], [], 0
     if resume:
         saved = ckpt.load(checkpoint, run_id, states, _kept_like(compiled.out_info[1], n_trace))
-        states, outs, k0, run_s = saved.states, [saved.trace], saved.chunks, saved.run_s
+        states, outs, k0, chunk_wall = saved.states, [saved.trace], saved.chunks, list(saved.chunk_s)
         compile_s += saved.compile_s
     if progress is not None:
         progress(chunk_s(k0), cfg.seconds)
@@ -294,13 +295,13 @@ def explore(
         if ended.all():
             break
         if wall_budget_s is not None and k > k0 and time.perf_counter() - t_call > wall_budget_s:  # a chunk a sitting
-            ckpt.save(checkpoint, run_id, states, _joined(outs), k, run_s, compile_s)
+            ckpt.save(checkpoint, run_id, states, _joined(outs), k, chunk_wall, compile_s)
             raise ckpt.Paused(checkpoint, chunk_s(k), cfg.seconds)
         t1 = time.perf_counter()
         states, out = compiled(params, states, inputs)
         outs.append(keep_first(out, n_trace, TRACED))
         ended = np.asarray(states.outcome)[:n] != xl.RUNNING
-        run_s += time.perf_counter() - t1  # the outputs' copy to the host included
+        chunk_wall.append(time.perf_counter() - t1)  # the outputs' copy to the host included
         if progress is not None:
             progress(chunk_s(k + 1), cfg.seconds)
     maps, nodes, loops = (np.asarray(a)[:n] for a in jax.device_get(finish(params, states)))
@@ -327,6 +328,7 @@ def explore(
         goal=trace.goal,
         mode=trace.mode,
         compile_s=compile_s,
-        run_s=run_s,
+        run_s=float(sum(chunk_wall)),
+        chunk_s=np.asarray(chunk_wall, np.float64),
         sim_s=float(trace.t[-1, 0]),
     )

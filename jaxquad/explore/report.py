@@ -10,7 +10,7 @@ time, held after a run ended); the map scores of each final map against the true
 counts and per-robot flags (explored, collided, lost, fallen); distance walked; the SLAM position
 error; for the traced robots, the seconds spent in each control mode (`loop.MODES`: MPPI, the goal turn,
 standing at the goal, recovery, the look-around turn, waiting) and the mode of each run's last tick, counted
-over the collided runs in `collided_while`; timing (compilation apart).
+over the collided runs in `collided_while`; timing (compilation apart; each chunk's wall time in `chunk_s`).
 """
 
 from __future__ import annotations
@@ -130,7 +130,7 @@ def summarize(result, every: float = 5.0) -> dict:
         },
         "distance_m": _stats(result.distance),
         "slam_error_m": _stats(result.error[result.active]),
-        "timing": timing(result, n),
+        "timing": timing(result, n) | {"chunk_s": np.round(result.chunk_s, 3).tolist()},
         "per_robot": per_robot,
     }
 
