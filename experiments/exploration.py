@@ -69,7 +69,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
     done = _finished_row(args, robot, world, variant)
     if done is not None and done.exists():
         saved = json.loads(done.read_text())
-        if saved.get("settings") != settings:
+        if {"slam_params": None} | saved.get("settings", {}) != settings:  # rows kept before --slam-params had none
             raise CheckpointError(f"{done}: a finished cell of other settings; remove it or choose another folder")
         print(f"{name}: finished earlier ({done})", file=sys.stderr, flush=True)
         return saved["row"]

@@ -77,7 +77,6 @@ def _mppi_rows(args, grid, open_rc, batch: int) -> list[dict]:
     from jaxquad import nav
     from jaxquad.bench import time_jitted
     from jaxquad.kernels import mppi
-    from jaxquad.kernels.costmap import CostGrid
     from jaxquad.nav.missions import footprint
     from jaxquad.robots import load
 
@@ -92,17 +91,13 @@ def _mppi_rows(args, grid, open_rc, batch: int) -> list[dict]:
     pose = np.c_[(rc[:, ::-1] + 0.5) * _RES, rng.uniform(-np.pi, np.pi, batch)].astype(np.float32)
     goal = pose + np.array([2.0, 1.0, 0.5], np.float32)
     path = pose[:, None, :2] + np.linspace(0.0, 1.0, 160)[None, :, None] * (goal - pose)[:, None, :2]
-    cost = jax.jit(jax.vmap(lambda g: nav.cost_grid(navp, g, jnp.zeros(2), _RES).cost))(local)
+    grid = jax.jit(jax.vmap(lambda g, o: nav.cost_grid(navp, g, o, _RES)))(local, jnp.asarray(origin))
     inputs = jax.vmap(mppi.MppiInputs)(  # one robot's inputs per call
         pose=jnp.asarray(pose),
         path=jnp.asarray(path, jnp.float32),
         path_valid=jnp.ones((batch, 160), bool),
         goal=jnp.asarray(goal),
-        grid=jax.vmap(CostGrid)(
-            cost=cost,
-            origin=jnp.asarray(origin),
-            resolution=jnp.full(batch, _RES, jnp.float32),
-        ),
+        grid=grid,  # with its depth layer, as the closed loops' controller reads it
         key=jax.random.split(jax.random.key(0), batch),
     )
     states = jax.vmap(mppi.init, in_axes=(None, 0))(params, inputs.pose)

@@ -84,7 +84,7 @@ def inflation_cost(distance: Float[Array, "*S"], params: CostmapParams) -> Float
 def inscribed_depth(distance: Float[Array, "*S"], params: CostmapParams) -> Float[Array, "*S"]:
     """How far inside the inscribed radius a distance (m) from the nearest obstacle lies, as a fraction of the
     radius: 1 - distance / inscribed_radius, clipped to 0..1."""
-    return jnp.clip(1.0 - distance / params.inscribed_radius, 0.0, 1.0)
+    return jnp.clip(1.0 - distance / jnp.maximum(params.inscribed_radius, 1e-6), 0.0, 1.0)  # radius 0: obstacles 1
 
 
 def costmap_layers(

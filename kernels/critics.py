@@ -49,7 +49,9 @@ def obstacle(
     With the costmap's inscribed radius at the disks' radius that is the footprint touching an obstacle, to
     within the grid's resolution (distances run between cell centres); with a safety padding on the radius it
     is entering the padding. The depth grades what a flat collision cost cannot: a robot that has drifted into
-    the padding, where every sample enters it, prefers the samples that leave it soonest and go least deep."""
+    the padding, where every sample enters it, prefers the samples that leave it soonest and go least deep.
+    Unknown cells beyond the inflation have depth 0: a sample entering unknown space alone costs the collision
+    cost once."""
     cost = footprint_cost(traj, grid, p_base_disk)
     hit = jnp.any(cost >= INSCRIBED, axis=-1)
     soft = jnp.mean(jnp.minimum(cost, INSCRIBED - 1) / (INSCRIBED - 1), axis=-1)

@@ -73,7 +73,7 @@ def test_costmap_matches_loop_reference():
 def test_depth_layer_grades_the_inscribed_zone():
     """The depth layer against scipy's distance transform: 1 - d / inscribed radius inside the radius (1 on an
     obstacle), 0 beyond it and on unknown cells no inflation reaches; the cost layer is costmap_from_occupancy's.
-    A grid without the layer reads depth 0 on the grid, and every grid reads 1 off it."""
+    A grid with the layer reads 1 off it; a grid without the layer reads 0 everywhere."""
     rng = np.random.default_rng(5)
     res, radius = 0.05, 0.3
     grid = np.zeros((40, 52), np.int8)

@@ -76,10 +76,13 @@ def test_traces_round_trip_and_bad_files(tmp_path):
     d = _traces()
     config = SimpleNamespace(robot="go2", world="warehouse", variant="full", seed=0, randomize=False)
     extra = dict(coverage=d["error"], distance=np.ones(3), nodes=np.ones(3), loops=np.zeros(3), starts=np.zeros((3, 3)))
+    extra |= dict(goal=d["pose"] + 1.0, mode=np.full(d["error"].shape, 5, np.int8))
     result = SimpleNamespace(config=config, **d, **extra)
     exploration.save_traces(tmp_path / "cell.npz", result)
     back = errors.load(tmp_path / "cell.npz")
     np.testing.assert_array_equal(back["pose"], d["pose"])
+    np.testing.assert_array_equal(back["goal"], extra["goal"])
+    assert back["mode"].dtype == np.int8 and np.all(back["mode"] == 5)
     assert str(back["world"]) == "warehouse" and int(back["seed"]) == 0 and not bool(back["randomize"])
     errors.plot(back, np.deg2rad(0.2), tmp_path / "errors.png")
     assert (tmp_path / "errors.png").stat().st_size > 0

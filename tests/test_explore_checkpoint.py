@@ -2,6 +2,7 @@
 keeps every value, type and random key; files of another run, of another layout or of no kind are refused."""
 
 import dataclasses
+import json
 
 import equinox as eqx
 import jax
@@ -117,7 +118,9 @@ def test_files_of_no_kind_are_refused_in_one_line(tmp_path):
     np.savez(tmp_path / "other.npz", a=np.zeros(3))
     with open(tmp_path / "cut.npz", "wb") as f:  # a checkpoint cut short
         f.write((ck.save(tmp_path / "whole.npz", run, _state(), _trace(), 1, [0.0], 0.0)).read_bytes()[:300])
-    for name, match in (("text", "unreadable"), ("other", "not an exploration checkpoint"), ("cut", "unreadable")):
+    np.savez(tmp_path / "old.npz", meta=np.asarray(json.dumps({"format": "jaxquad-explore-checkpoint-1"})))
+    cases = [("text", "unreadable"), ("other", "not an exploration checkpoint"), ("cut", "unreadable")]
+    for name, match in [*cases, ("old", "another version of jaxquad")]:
         with pytest.raises(ck.CheckpointError, match=match) as e:
             ck.check(tmp_path / f"{name}.npz", run)
         assert "\n" not in str(e.value) and "unsafe" not in str(e.value)

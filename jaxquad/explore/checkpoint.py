@@ -90,6 +90,9 @@ def _read(path: Path, run_id: str, arrays: bool) -> tuple[dict, dict]:
     except Exception as e:  # noqa: BLE001 - a file of any other kind or a truncated one: say which and why
         why = str(e).split(". ")[0]  # the reason, without advice on loading untrusted files
         raise CheckpointError(f"{path}: unreadable checkpoint ({type(e).__name__}: {why})") from None
+    older = isinstance(meta, dict) and str(meta.get("format", "")).startswith(FORMAT.rsplit("-", 1)[0])
+    if older and meta["format"] != FORMAT:
+        raise CheckpointError(f"{path}: saved by another version of jaxquad; remove it to start afresh")
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise CheckpointError(f"{path}: not an exploration checkpoint")
     if meta.get("run") != run_id:

@@ -281,7 +281,7 @@ def explore(
     compiled = compile_chunk(chunk, params, states, inputs, cfg.chunk_ticks, REPLAN_TICKS)
     compile_s = time.perf_counter() - t0
     n_chunks = max(1, math.ceil(cfg.seconds / (cfg.chunk_ticks * tick_dt) - 1e-9))
-    chunk_s = lambda k: round(min(cfg.seconds, k * cfg.chunk_ticks * tick_dt), 1)  # noqa: E731
+    sim_at = lambda k: round(min(cfg.seconds, k * cfg.chunk_ticks * tick_dt), 1)  # noqa: E731
     n_trace = min(cfg.trace_robots, n)
     outs, chunk_wall, k0 = [], [], 0
     if resume:
@@ -289,21 +289,21 @@ def explore(
         states, outs, k0, chunk_wall = saved.states, [saved.trace], saved.chunks, list(saved.chunk_s)
         compile_s += saved.compile_s
     if progress is not None:
-        progress(chunk_s(k0), cfg.seconds)
+        progress(sim_at(k0), cfg.seconds)
     ended = np.asarray(states.outcome)[:n] != xl.RUNNING
     for k in range(k0, n_chunks):
         if ended.all():
             break
         if wall_budget_s is not None and k > k0 and time.perf_counter() - t_call > wall_budget_s:  # a chunk a sitting
             ckpt.save(checkpoint, run_id, states, _joined(outs), k, chunk_wall, compile_s)
-            raise ckpt.Paused(checkpoint, chunk_s(k), cfg.seconds)
+            raise ckpt.Paused(checkpoint, sim_at(k), cfg.seconds)
         t1 = time.perf_counter()
         states, out = compiled(params, states, inputs)
         outs.append(keep_first(out, n_trace, TRACED))
         ended = np.asarray(states.outcome)[:n] != xl.RUNNING
         chunk_wall.append(time.perf_counter() - t1)  # the outputs' copy to the host included
         if progress is not None:
-            progress(chunk_s(k + 1), cfg.seconds)
+            progress(sim_at(k + 1), cfg.seconds)
     maps, nodes, loops = (np.asarray(a)[:n] for a in jax.device_get(finish(params, states)))
     trace = _joined(outs)
     return ExploreResult(

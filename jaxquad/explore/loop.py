@@ -56,6 +56,7 @@ RUNNING, EXPLORED, COLLIDED, LOST, FALLEN = range(len(OUTCOMES))
 # still without a goal where that turn is blocked, or nothing (the run had ended).
 MODES = ("mppi", "goal_turn", "arrived", "recovery", "spin", "wait", "ended")
 MPPI, GOAL_TURN, ARRIVED, RECOVERY, SPIN, WAIT, ENDED = range(len(MODES))
+HOLD_RADIUS = 0.15  # m: a waiting robot farther than this from its hold point holds where it is instead
 FREE_BELOW = 20  # map value (0..100) below which a known cell is free: the map format's free_thresh 0.196
 
 
@@ -158,10 +159,14 @@ def idle_command(
 ) -> tuple[Float[Array, " 3"], Float[Array, " 3"]]:
     """(command, pose held) without a frontier goal: turn in place at `spin_rate` (rad/s) where the turn is clear,
     else wait, holding the SLAM pose where the wait began (`pose` on its first tick, `held_at` after: a trotting
-    gait told to stand still drifts) by a proportional step (`hold_gain`, 1/s, within `controller`'s limits)."""
-    held_at = jnp.where(waiting, held_at, pose)
+    gait told to stand still drifts) by a proportional step (`hold_gain`, 1/s, within `controller`'s limits).
+    A hold point more than `HOLD_RADIUS` away (the SLAM pose jumped at a loop closure; the drift is centimetres)
+    is given up for the pose itself rather than walked back to unchecked; a non-finite pose stands still."""
+    far = jnp.linalg.norm(pose[:2] - held_at[:2]) > HOLD_RADIUS
+    held_at = jnp.where(waiting & ~far, held_at, pose)
     hold = mppi.toward_pose(controller, pose, held_at, hold_gain, hold_gain)
-    return jnp.where(can_turn, jnp.array([0.0, 0.0, 1.0]) * spin_rate, hold), held_at
+    cmd = jnp.where(can_turn, jnp.array([0.0, 0.0, 1.0]) * spin_rate, hold)
+    return jnp.where(jnp.all(jnp.isfinite(pose)), cmd, 0.0), held_at
 
 
 def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:

@@ -10,7 +10,7 @@ time, held after a run ended); the map scores of each final map against the true
 counts and per-robot flags (explored, collided, lost, fallen); distance walked; the SLAM position
 error; for the traced robots, the seconds spent in each control mode (`loop.MODES`: MPPI, the goal turn,
 standing at the goal, recovery, the look-around turn, waiting) and the mode of each run's last tick, counted
-over the collided runs in `collided_while`; timing (compilation apart; each chunk's wall time in `chunk_s`).
+over the traced collided runs in `collided_while`; timing (compilation apart; each chunk's wall time in `chunk_s`).
 """
 
 from __future__ import annotations
@@ -79,7 +79,8 @@ def summarize(result, every: float = 5.0) -> dict:
     final_clear = _final_coverage(result, result.clear)
     scores = [dataclasses.asdict(map_scores(m, result.truth)) for m in final_maps(result)]
     times, cov_t = coverage_samples(result, every)
-    n_trace, tick_s = result.mode.shape[1], float(np.diff(result.t[:2]).sum()) if len(result.t) > 1 else 0.0
+    n_trace = result.mode.shape[1]
+    tick_s = float(result.t[1] - result.t[0]) if len(result.t) > 1 else float(result.t[0])  # the first ends one in
     last_mode = _last_modes(result)
     per_robot = []
     for i in range(n):
