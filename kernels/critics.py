@@ -52,10 +52,11 @@ def obstacle(
     the padding, where every sample enters it, prefers the samples that leave it soonest and go least deep.
     Unknown cells beyond the inflation have depth 0: a sample entering unknown space alone costs the collision
     cost once."""
-    cost = footprint_cost(traj, grid, p_base_disk)
+    centres = _disk_centres(traj, p_base_disk)
+    cost = jnp.max(grid.cost_at(centres), axis=-1)  # footprint_cost, from the centres computed once
     hit = jnp.any(cost >= INSCRIBED, axis=-1)
     soft = jnp.mean(jnp.minimum(cost, INSCRIBED - 1) / (INSCRIBED - 1), axis=-1)
-    depth = jnp.max(grid.depth_at(_disk_centres(traj, p_base_disk)), axis=-1)  # (S, T)
+    depth = jnp.max(grid.depth_at(centres), axis=-1)  # (S, T)
     graded = 1.0 + jnp.max(depth, axis=-1) + jnp.mean(depth, axis=-1)
     return soft + jnp.where(hit, collision_cost * graded, 0.0)
 

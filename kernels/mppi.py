@@ -191,7 +191,11 @@ def _total_cost(params: MppiParams, traj, u, last_cmd, inputs: MppiInputs, near_
 
 
 def toward_pose(
-    params: MppiParams, pose: Float[Array, " 3"], target: Float[Array, " 3"], k_xy: Float[Array, ""], k_yaw
+    params: MppiParams,
+    pose: Float[Array, " 3"],
+    target: Float[Array, " 3"],
+    k_xy: Float[Array, ""],
+    k_yaw: Float[Array, ""],
 ) -> Float[Array, " 3"]:
     """Proportional step to a nearby pose: body-frame velocity `k_xy` (1/s) x the position error, scaled down as
     a whole (direction kept) into the speed limits, and yaw rate `k_yaw` (1/s) x the yaw error, clipped."""

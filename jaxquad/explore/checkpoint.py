@@ -63,9 +63,14 @@ def save(path: str | Path, run_id: str, states, trace, chunks: int, chunk_s: lis
     leaves = jax.device_get([jax.random.key_data(x) if _is_key(x) else x for x in leaves])
     arrays = {f"state_{i}": np.asarray(x) for i, x in enumerate(leaves)}
     arrays |= {f"trace_{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(trace))}
-    chunk_s = [float(x) for x in chunk_s]
-    meta = {"format": FORMAT, "run": run_id, "robots": robots, "chunks": chunks, "chunk_s": chunk_s}
-    meta["compile_s"] = compile_s
+    meta = {
+        "format": FORMAT,
+        "run": run_id,
+        "robots": robots,
+        "chunks": chunks,
+        "chunk_s": [float(x) for x in chunk_s],
+        "compile_s": compile_s,
+    }
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_open(path, "wb") as f:

@@ -262,11 +262,9 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
             params.nav, nav_state, nav.NavInputs(pose=s.pose, goal=ex.goal, grid=grid, key=k_nav)
         )
         can_turn = critics.turn_is_clear(s.pose, grid, params.nav.controller.footprint_disks)
-        ctrl_params = params.nav.controller
         idle, held_at = idle_command(
-            ctrl_params, params.spin_rate, params.hold_gain, s.pose, can_turn, s.waiting, s.held_at
+            params.nav.controller, params.spin_rate, params.hold_gain, s.pose, can_turn, s.waiting, s.held_at
         )
-        waiting = ~ex.has_goal & ~can_turn
         cmd = jnp.where(ex.has_goal, ctrl.cmd, idle)
         mode = jnp.select(
             [~active, ~ex.has_goal & can_turn, ~ex.has_goal, ctrl.recovering, ctrl.arrived, ctrl.goal_turn],
@@ -297,7 +295,7 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
             explore=ex,
             nav=nav_state,
             cmd=jnp.where(still, cmd, 0.0),
-            waiting=waiting,
+            waiting=mode == WAIT,
             held_at=held_at,
             no_goal_for=no_goal_for,
             lost_for=lost_for,
