@@ -241,6 +241,10 @@ def main() -> int:
                 check_output_dir(folder, flag, kind=None)
         if args.checkpoint:  # finished rows go there, also from a cell that ends in its first sitting
             Path(args.checkpoint).mkdir(parents=True, exist_ok=True)
+        if args.slam_params:
+            from jaxquad.slam import load_params
+
+            load_params(args.slam_params)  # a missing or bad file: one line now, not a traceback later
     except (ValueError, OSError) as e:
         p.error(str(e))
 

@@ -185,6 +185,13 @@ def main() -> None:
     p.add_argument("--json", default=None, help="also write every robot's report to this JSON file")
     args = p.parse_args()
     args.robot, args.world = args.robot or ["go2"], args.world or ["house"]
+    if args.params:
+        from jaxquad.slam import load_params
+
+        try:  # a missing or bad file: one line before the simulation, not a traceback after it
+            load_params(args.params)
+        except (ValueError, OSError) as e:
+            p.error(str(e))
     print(f"command: {' '.join(sys.argv)}")
     print(f"machine: {platform.node()}, {jax.devices()[0].device_kind} ({jax.default_backend()})")
     rows = [
