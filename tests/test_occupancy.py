@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from jaxquad.io.maps import load_map, save_map
-from jaxquad.kernels.occupancy import GridSpec, OccupancyParams, init_grid, insert_scan, map_from_scans, scan_codes
+from jaxquad.kernels.occupancy import GridSpec, OccupancyParams, init_grid, insert_scan, map_from_scans, scan_evidence
 from jaxquad.slam.mapping import fleet_maps, grid_spec, to_occupancy_map
 
 SPEC = GridSpec(rows=60, cols=80, resolution=0.1, origin_x=-4.0, origin_y=-3.0, max_range=5.0)
 PARAMS = OccupancyParams(range_min=jnp.asarray(0.2), range_max=jnp.asarray(4.0))
-_codes = jax.jit(scan_codes)
+_evidence = jax.jit(scan_evidence)
 _insert = jax.jit(insert_scan)
 
 
@@ -37,8 +37,11 @@ def _bresenham(c0, r0, c1, r1):
     return cells
 
 
-def _codes_np(spec, pose, ranges, bearings, range_min, range_max):
-    codes = np.zeros((spec.rows, spec.cols), np.int8)
+def _evidence_np(spec, pose, ranges, bearings, range_min, range_max, l_occ, l_free):
+    """Per cell: the sum of the rays' evidence (l_occ at a return's end cell, l_free elsewhere on the ray)
+    clipped to [l_free, l_occ], and whether a ray touched it."""
+    total = np.zeros((spec.rows, spec.cols))
+    touched = np.zeros((spec.rows, spec.cols), bool)
     cell = lambda x, y: (
         int(np.floor((y - spec.origin_y) / spec.resolution)),
         int(np.floor((x - spec.origin_x) / spec.resolution)),
@@ -52,17 +55,17 @@ def _codes_np(spec, pose, ranges, bearings, range_min, range_max):
         a = np.float32(pose[2]) + np.float32(b)
         r1, c1 = cell(np.float32(pose[0]) + np.float32(d) * np.cos(a), np.float32(pose[1]) + np.float32(d) * np.sin(a))
         line = _bresenham(c0, r0, c1, r1)
-        for row, col in line[:-1]:
+        for k, (row, col) in enumerate(line):
             if 0 <= row < spec.rows and 0 <= col < spec.cols:
-                codes[row, col] = max(codes[row, col], 1)
-        row, col = line[-1]
-        if 0 <= row < spec.rows and 0 <= col < spec.cols:
-            codes[row, col] = 2 if hit else max(codes[row, col], 1)
-    return codes
+                total[row, col] += l_occ if (hit and k == len(line) - 1) else l_free
+                touched[row, col] = True
+    return np.clip(total, l_free, l_occ), touched
 
 
-def test_scan_cells_equal_numpy_bresenham():
+def test_scan_evidence_equals_numpy_bresenham_sums():
     rng = np.random.default_rng(0)
+    l_occ, l_free = float(PARAMS.l_occ), float(PARAMS.l_free)
+    mixed = 0
     for trial in range(5):
         pose = np.array([rng.uniform(-3, 3), rng.uniform(-2, 2), rng.uniform(-np.pi, np.pi)], np.float32)
         bearings = np.linspace(-np.pi, np.pi, 181, endpoint=False).astype(np.float32)
@@ -70,11 +73,15 @@ def test_scan_cells_equal_numpy_bresenham():
         ranges[::17] = np.inf
         ranges[5::23] = np.nan
         ranges[7::29] = -np.inf
-        ours = np.asarray(_codes(SPEC, PARAMS, jnp.asarray(pose), jnp.asarray(ranges), jnp.asarray(bearings)))
+        delta, touched = _evidence(SPEC, PARAMS, jnp.asarray(pose), jnp.asarray(ranges), jnp.asarray(bearings))
         # Endpoints that land within float32 rounding of a cell border may differ; there are none here
-        # at this seed, so the comparison is exact.
-        ref = _codes_np(SPEC, pose, ranges, bearings, 0.2, 4.0)
-        assert np.array_equal(ours, ref), f"trial {trial}: {np.argwhere(ours != ref)[:5]}"
+        # at this seed, so the cells compare exactly.
+        ref_delta, ref_touched = _evidence_np(SPEC, pose, ranges, bearings, 0.2, 4.0, l_occ, l_free)
+        assert np.array_equal(np.asarray(touched), ref_touched), f"trial {trial}"
+        np.testing.assert_allclose(np.asarray(delta), ref_delta, atol=1e-5)
+        # cells that rays both end in and cross, with a change strictly between the two bounds
+        mixed += int(np.sum((ref_delta > l_free + 1e-6) & (ref_delta < l_occ - 1e-6) & (ref_delta != 0)))
+    assert mixed > 10
 
 
 def test_log_odds_update_and_clamping():
@@ -83,13 +90,15 @@ def test_log_odds_update_and_clamping():
     grid = init_grid(SPEC)
     for _ in range(10):
         grid = _insert(SPEC, PARAMS, grid, pose, ranges, bearings)
-    codes = np.asarray(_codes(SPEC, PARAMS, pose, ranges, bearings))
+    delta, touched = (np.asarray(a) for a in _evidence(SPEC, PARAMS, pose, ranges, bearings))
     lo = np.asarray(grid.log_odds)
-    np.testing.assert_allclose(lo[codes == 2], float(PARAMS.l_max))  # 10 x 0.85 clamped at 3.5
-    np.testing.assert_allclose(lo[codes == 1], float(PARAMS.l_min))
-    assert np.all(lo[codes == 0] == 0) and np.array_equal(np.asarray(grid.observed), codes > 0)
-    assert (codes == 2).sum() == 1  # the +inf ray clears to range_max but marks no hit; NaN does nothing
-    assert (codes[:, 40] == 1).sum() == 30  # the +inf ray: rows 30 up to 69, clipped at the top row 59
+    hit, free = delta > 0, delta < 0
+    np.testing.assert_allclose(lo[hit], float(PARAMS.l_max))  # 10 x l_occ (1.39) clamped at 3.5
+    np.testing.assert_allclose(lo[free], float(PARAMS.l_min))
+    assert np.all(lo[~touched] == 0) and np.array_equal(np.asarray(grid.observed), touched)
+    assert hit.sum() == 1  # the +inf ray clears to range_max but marks no hit; NaN does nothing
+    assert (free[:, 40]).sum() == 30  # the +inf ray: rows 30 up to 69, clipped at the top row 59
+    assert touched.sum() == hit.sum() + free.sum()  # the two rays share only the sensor's cell (free)
 
 
 def test_map_from_scans_vmaps_and_saves(tmp_path):

@@ -285,7 +285,7 @@ def test_params_file_checks(tmp_path):
     occ = slam_config(values, GRID, "off")[1].occupancy
     assert float(occ.l_occ) == pytest.approx(float(OccupancyParams().l_occ), rel=1e-6)
     assert float(occ.l_free) == pytest.approx(float(OccupancyParams().l_free), rel=1e-6)
-    occ = slam_config(values | {"occupancy_hit_probability": 0.8, "occupancy_miss_probability": 0.3}, GRID, "off")[1]
-    assert float(occ.occupancy.l_occ) == pytest.approx(np.log(4.0)) and float(occ.occupancy.l_free) == pytest.approx(
+    occ = slam_config(values | {"occupancy_hit_probability": 0.9, "occupancy_miss_probability": 0.3}, GRID, "off")[1]
+    assert float(occ.occupancy.l_occ) == pytest.approx(np.log(9.0)) and float(occ.occupancy.l_free) == pytest.approx(
         np.log(3.0 / 7.0)
     )

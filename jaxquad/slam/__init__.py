@@ -8,7 +8,7 @@ from jaxquad.kernels.occupancy import (
     init_grid,
     insert_scan,
     map_from_scans,
-    scan_codes,
+    scan_evidence,
 )
 from jaxquad.kernels.posegraph import PoseGraph, SolveInfo, SolverParams, chi2, edge_error, optimize
 from jaxquad.slam.graph import build_graph, stack_graphs
@@ -58,7 +58,7 @@ __all__ = [
     "map_from_scans",
     "optimize",
     "optimize_g2o",
-    "scan_codes",
+    "scan_evidence",
     "stack_graphs",
     "to_occupancy_map",
 ]
