@@ -1,6 +1,8 @@
-"""How a scan ray's range is taken from its band of pixel rows: the band's minimum against the median.
+"""How a scan ray's range is taken from its band of pixel rows (the band's minimum against the median), and
+what the map's inverse sensor model makes of the scans.
 
     python experiments/scan_band.py [--robot go2] [--world house] [--robots 2] [--seconds 40] [--seed 0]
+        [--map-models 0.7/0.4 0.8/0.35 0.8/0.3]
 
 It simulates a fleet with depth (aggressive gait, in memory), runs the estimator with true contacts,
 and slices stabilized scans three ways: a 5-row band reduced by its minimum (the paper's rule, ROS
@@ -11,12 +13,19 @@ depthimage_to_laserscan's), a 1-row band, and a 5-row band reduced by its median
   true range is marched on the true map from the true laser pose in steps of 0.01 m;
 - the map of each kind drawn from the true laser poses (`jaxquad.kernels.occupancy`, readings beyond
   8 m as no-returns) scored against the true map (`jaxquad.metrics.map_scores`, in view of the true
-  path), mean over robots: the scans' own error, with no pose error in it.
+  path), mean over robots: the scans' own error, with no pose error in it;
+- with --map-models HIT/MISS ...: maps drawn with each inverse sensor model (`occupancy_hit_probability` /
+  `occupancy_miss_probability`) from the 5-row median scans out to 8 m (what `jaxquad slam` maps) and from
+  the 1-row scans out to 4 m (what exploration maps), at the true laser poses and at the leg-inertial
+  odometry's: precision, in-view IoU and recall, and `free seen`, the share of the true free cells that
+  the rays from the true path crossed which the map calls free (below occupancy 0.196; what exploration's
+  coverage counts). Mean over robots.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import platform
 import sys
 
@@ -48,9 +57,22 @@ def main() -> int:
     p.add_argument("--robots", type=int, default=2, help="robots in the fleet (default 2)")
     p.add_argument("--seconds", type=float, default=40.0, help="simulated time, s (default 40)")
     p.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
+    p.add_argument(
+        "--map-models",
+        nargs="+",
+        default=[],
+        metavar="HIT/MISS",
+        help="inverse sensor models to compare, e.g. 0.8/0.35 (slam.yaml's) 0.8/0.3 (default: none)",
+    )
     args = p.parse_args()
     if args.robots < 1 or not args.seconds > 0:
         p.error("--robots must be >= 1 and --seconds positive")
+    try:
+        models = [tuple(float(v) for v in m.split("/")) for m in args.map_models]
+    except ValueError:
+        p.error(f"--map-models takes HIT/MISS probabilities such as 0.8/0.35, got {args.map_models}")
+    if any(len(m) != 2 or not (0.5 < m[0] < 1.0 and 0.0 < m[1] < 0.5) for m in models):
+        p.error(f"--map-models: each HIT/MISS needs 0.5 < HIT < 1 and 0 < MISS < 0.5, got {args.map_models}")
     from jaxquad.estimate import estimate_log
     from jaxquad.estimate.laser import leg_laser_inputs, scan_ranges
     from jaxquad.kernels.lie import se2, xy_theta
@@ -110,7 +132,49 @@ def main() -> int:
         ]
         mean = lambda key, s=s: np.mean([getattr(v, key) for v in s])  # noqa: E731
         print(f"| {name} | {mean('precision'):.2f} | {mean('iou'):.2f} | {mean('iou_in_view'):.2f} |")
+    if models:
+        T_odom = se2(jnp.asarray(x["odom"], jnp.float32)) @ se2(jnp.asarray(x["T_base_laser"], jnp.float32))
+        poses = {"true": laser, "leg odometry": np.asarray(xy_theta(T_odom))}
+        _map_models(models, truth, spec, poses, scans[KINDS[2][0]], scans[KINDS[1][0]])
     return 0
+
+
+def _map_models(models, truth, spec, poses: dict, median_scans, row_scans) -> None:
+    """The third table (module docstring): each model's maps at each kind of pose, for both scan uses."""
+    from jaxquad.io.maps import FREE_THRESH
+    from jaxquad.kernels.occupancy import OccupancyParams
+    from jaxquad.metrics import cells_in_view, map_scores
+    from jaxquad.slam.mapping import fleet_maps, to_occupancy_map
+
+    logit = lambda q: jnp.asarray(math.log(q / (1.0 - q)))  # noqa: E731
+    true_free = (truth.grid >= 0) & (truth.grid < 100 * FREE_THRESH)
+    print("\n| scans | map range m | hit / miss | poses | precision | IoU in view | recall in view | free seen |")
+    print("|---|---:|---|---|---:|---:|---:|---:|")
+    for label, (ranges, bearings), map_range in (("5 rows, median", median_scans, 8.0), ("1 row", row_scans, 4.0)):
+        n = ranges.shape[0]
+        in_view = [cells_in_view(truth, poses["true"][i], bearings, map_range) for i in range(n)]
+        crossed = None  # the true free cells that rays from the true path crossed: the same for every model
+        for hit, miss in models:
+            params = OccupancyParams(l_free=logit(miss), l_occ=logit(hit), range_max=jnp.asarray(map_range))
+            for kind, laser in poses.items():
+                grids = fleet_maps(
+                    spec, params, jnp.asarray(laser, jnp.float32), jnp.asarray(ranges), jnp.asarray(bearings)
+                )
+                if crossed is None:
+                    crossed = true_free & np.asarray(grids.observed)
+                rows = []
+                for i in range(n):
+                    occ = to_occupancy_map(spec, jax.tree.map(lambda a, i=i: a[i], grids))
+                    s = map_scores(occ, truth, in_view[i])
+                    free = (occ.grid >= 0) & (occ.grid < 100 * FREE_THRESH)
+                    seen_free = (free & crossed[i]).sum() / max(crossed[i].sum(), 1)
+                    rows.append((s.precision, s.iou_in_view, s.recall_in_view, seen_free))
+                m = np.mean(rows, 0)
+                print(
+                    f"| {label} | {map_range:g} | {hit:g} / {miss:g} | {kind} | {m[0]:.3f} | {m[1]:.3f} | {m[2]:.3f} "
+                    f"| {m[3]:.3f} |",
+                    flush=True,
+                )
 
 
 if __name__ == "__main__":
