@@ -2,14 +2,14 @@
 
     python experiments/slam_accuracy.py [--robot go2 --robot badger] [--world house --world warehouse]
         [--robots 2] [--seconds 10] [--style aggressive] [--contacts truth] [--scan-hz 10]
-        [--lo-constraints off velocity preintegrated] [--band-reduce median] [--throughput 1 4096] [--devices 1 2]
-        [--params slam.yaml] [--json rows.json]
+        [--lo-constraints off velocity preintegrated] [--band-reduce median] [--map-scans every|nodes]
+        [--throughput 1 4096] [--devices 1 2] [--params slam.yaml] [--json rows.json]
 
 For each robot and world it simulates a fleet (`jaxquad.sim.rollout`, depth on, `--robots` robots in
 up to 4 distinct worlds), runs the estimator once (leg-inertial odometry with `--contacts`, the
 stabilized scans at `--scan-hz`, each ray the `--band-reduce` of its 5-pixel band), then the online
 SLAM (`jaxquad.slam`, the parameters of slam.yaml, overridden by `--params`) once per constraint kind on the same
-scans.
+scans; the map scored is drawn from every scan at its final pose (`--map-scans nodes`: the nodes' scans alone).
 Printed as Markdown, means +- std over the fleet's robots: ATE (m, SE(3)-aligned, evo's definition)
 of the odometry alone, of the online SLAM pose at each scan and of the final (after the last
 optimization) trajectory; occupied-cell IoU, precision and recall of the final map against the true
@@ -44,7 +44,7 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list, edge_rows: 
     from jaxquad.estimate.laser import every_nth_frame, laser_inputs
     from jaxquad.sim.fleet import FleetConfig
     from jaxquad.sim.rollout import rollout
-    from jaxquad.slam import final_poses, load_params, map_grid, run_fleet, slam_config
+    from jaxquad.slam import final_poses, load_params, map_grid, redraw_maps, run_fleet, slam_config
     from jaxquad.slam.report import robot_report, robot_slice, truth_in_view
 
     config = FleetConfig(
@@ -83,6 +83,8 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list, edge_rows: 
         state, out, _ = run_fleet(spec, params, x)
         wall = time.perf_counter() - t0
         final = final_poses(state, out)
+        if args.map_scans == "every":
+            state = redraw_maps(spec, params, state, out, x)
         reps = [
             robot_report(spec, t, robot_slice(state, i), robot_slice(out, i), final[i], x, i, robot_maps[i], in_view[i])
             for i in range(args.robots)
@@ -148,6 +150,7 @@ def _throughput(cell: dict, batches, devices, rows: list) -> None:
 
 def main() -> None:
     from jaxquad.cli import add_band_reduce_argument
+    from jaxquad.slam.cli import MAP_SCANS
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--robot", action="append", choices=("go2", "badger"), help="robots (default: go2)")
@@ -174,6 +177,12 @@ def main() -> None:
         help="constraint kinds (default: all three)",
     )
     add_band_reduce_argument(p)
+    p.add_argument(
+        "--map-scans",
+        choices=MAP_SCANS,
+        default="every",
+        help="the scans that draw the scored map: every scan at its final pose, or the nodes' alone (default every)",
+    )
     p.add_argument("--throughput", type=int, nargs="*", default=[], help="robot counts for the speed table")
     p.add_argument(
         "--devices",

@@ -8,15 +8,25 @@ import functools
 import json
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from _laser2d import box, cast
 
 from jaxquad.cli import main
-from jaxquad.io import read_tum
+from jaxquad.io import load_map, read_tum
 from jaxquad.io.carmen import LaserLog, save_laser_npz
 from jaxquad.kernels.scan_grid import MatchSpec, cells_for_range
-from jaxquad.slam import SlamParams, SlamSpec, final_poses, grid_spec, load_params, run_fleet
+from jaxquad.slam import (
+    SlamParams,
+    SlamSpec,
+    final_poses,
+    grid_spec,
+    load_params,
+    map_from_scans,
+    redraw_maps,
+    run_fleet,
+)
 from jaxquad.slam.report import tum_of
 from jaxquad.slam.run import nodes_needed
 
@@ -141,6 +151,30 @@ def test_loop_closed_and_drift_removed():
     assert len(xy) > 300 and np.mean(dist < 0.1) > 0.95
 
 
+def test_map_from_every_scan():
+    """`redraw_maps` draws every scan from the first node on at its final pose composed with T_base_laser:
+    the grid kernel's map of those scans at sensor poses composed here in NumPy; with no laser offset its
+    known cells hold every cell of the nodes' map and more; the graph is left as it was."""
+    x, state, out, _, final = _loop_run("preintegrated")
+    every = redraw_maps(_spec("preintegrated"), SlamParams(), state, out, x)
+    nodes_seen, every_seen = np.asarray(state.grid.observed[0]), np.asarray(every.grid.observed[0])
+    assert np.all(every_seen[nodes_seen]) and every_seen.sum() > nodes_seen.sum()
+    np.testing.assert_array_equal(every.graph.poses, state.graph.poses)
+
+    T = np.array([0.2, 0.05, 0.1])  # base -> laser
+    params = SlamParams(T_base_laser=jnp.asarray(T, jnp.float32))
+    every = redraw_maps(_spec("preintegrated"), params, state, out, x)
+    ok = np.all(np.isfinite(final), axis=1)
+    assert ok[np.argmax(ok) :].all() and ok.sum() > 0.9 * len(ok)  # no pose only before the first node
+    c, s = np.cos(final[:, 2]), np.sin(final[:, 2])
+    sensor = np.c_[final[:, 0] + c * T[0] - s * T[1], final[:, 1] + s * T[0] + c * T[1], final[:, 2] + T[2]]
+    f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+    poses = f32(np.where(ok[:, None], sensor, 0.0))
+    ref = map_from_scans(GRID, params.occupancy, poses, f32(x["ranges"][0]), f32(BEARINGS), jnp.asarray(ok))
+    np.testing.assert_array_equal(every.grid.observed[0], ref.observed)
+    np.testing.assert_allclose(every.grid.log_odds[0], ref.log_odds, atol=1e-4)
+
+
 def test_leg_constraints_pull_back_a_corrupted_match():
     """One scan cast 0.35 m to the side of where the robot is (as a shaking robot's scan can be): with
     no leg constraint the node goes where that scan matched; with either kind it stays near the truth."""
@@ -209,6 +243,7 @@ def test_cli_on_a_laser_npz_with_truth_and_a_carmen_log(tmp_path, capsys):
     summary = json.loads((tmp_path / "a" / "summary.json").read_text())
     r = summary["robots"][0]
     assert summary["format"] == "laser-npz" and summary["lo_constraints"] == "off" and r["loop_closures"] >= 1
+    assert summary["map_scans"] == "every"
     # A laser log takes laser.yaml's overrides under the params file's.
     assert summary["params_defaults"][-1].endswith("laser.yaml") and summary["params"]["robust_loop_edges"] == 1
     # The log adds more nodes than the params file's 32 slots: the capacity grew to hold them all.
@@ -239,9 +274,15 @@ def test_cli_on_a_laser_npz_with_truth_and_a_carmen_log(tmp_path, capsys):
         str(params),
         "--flaser-fov-deg",
         "357",
+        "--map-scans",
+        "nodes",
     ]
     assert main(argv) == 0
-    assert json.loads((tmp_path / "b" / "summary.json").read_text())["format"] == "carmen"
+    summary = json.loads((tmp_path / "b" / "summary.json").read_text())
+    assert summary["format"] == "carmen" and summary["map_scans"] == "nodes"
+    # The nodes' scans alone (one in five here) leave more of the map unknown than every scan.
+    unknown = {k: int((load_map(tmp_path / k / "map.yaml").grid < 0).sum()) for k in "ab"}
+    assert unknown["a"] < unknown["b"], unknown
     np.testing.assert_allclose(read_tum(tmp_path / "b" / "trajectory_final.tum").t_s, log.scan_t, rtol=0, atol=1e-3)
     capsys.readouterr()
 

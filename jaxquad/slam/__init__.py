@@ -13,9 +13,9 @@ from jaxquad.kernels.occupancy import (
 from jaxquad.kernels.posegraph import PoseGraph, SolveInfo, SolverParams, chi2, edge_error, optimize
 from jaxquad.slam.graph import build_graph, stack_graphs
 from jaxquad.slam.mapping import fleet_maps, grid_spec, grid_spec_like, to_occupancy_map
-from jaxquad.slam.online import finish, refresh_map, scan_poses, step
+from jaxquad.slam.online import finish, refresh_map, scan_map, scan_poses, step
 from jaxquad.slam.params import load_params, slam_config
-from jaxquad.slam.run import final_poses, laser_log_inputs, map_grid, run_fleet
+from jaxquad.slam.run import final_poses, laser_log_inputs, map_grid, redraw_maps, run_fleet
 from jaxquad.slam.solve import g2o_pose_graph, optimize_g2o
 from jaxquad.slam.state import LO_CONSTRAINTS, SlamInputs, SlamOutput, SlamParams, SlamSpec, SlamState, init
 from jaxquad.slam.synthetic import SyntheticGraph, manhattan_graph
@@ -33,8 +33,10 @@ __all__ = [
     "laser_log_inputs",
     "load_params",
     "map_grid",
+    "redraw_maps",
     "refresh_map",
     "run_fleet",
+    "scan_map",
     "scan_poses",
     "slam_config",
     "step",

@@ -17,6 +17,7 @@ import numpy as np
 
 SUMMARY_KIND = "jaxquad slam"
 FORMATS = ("auto", "robot", "carmen", "laser-npz")
+MAP_SCANS = ("every", "nodes")  # the scans that draw the written map (`jaxquad.slam.redraw_maps`, or the nodes')
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -79,6 +80,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--band-height", type=int, default=5, help="robot logs: scan band height in px (default 5)")
     add_band_reduce_argument(parser, None, "median; min with --variant", "robot logs: ")
     parser.add_argument(
+        "--map-scans",
+        choices=MAP_SCANS,
+        default=None,
+        help="the scans that draw the written map: every scan at its pose after the last optimization, or the "
+        "nodes' scans alone (slam_toolbox's map, and the online map) (default every; nodes with --variant)",
+    )
+    parser.add_argument(
         "--true-map",
         nargs="+",
         default=None,
@@ -116,8 +124,8 @@ def detect_format(path: Path) -> str:
 
 def resolve_variant(args) -> None:
     """Fill --scans, --odometry, --vo-leg-odometry and --lo-constraints from --variant (which may not be
-    combined with them) or from their defaults; --band-reduce, when not given, is the paper's min with a
-    variant and median without."""
+    combined with them) or from their defaults; --band-reduce and --map-scans, when not given, are the paper's
+    min and nodes with a variant, median and every without."""
     from jaxquad.slam.variants import VARIANTS
 
     keys = ("scans", "odometry", "vo_leg_odometry", "lo_constraints")
@@ -134,9 +142,13 @@ def resolve_variant(args) -> None:
         )
         if args.band_reduce is None:
             args.band_reduce = "min"  # the paper's scans
+        if args.map_scans is None:
+            args.map_scans = "nodes"  # the paper's map (slam_toolbox draws its nodes' scans)
         return
     if args.band_reduce is None:
         args.band_reduce = "median"
+    if args.map_scans is None:
+        args.map_scans = "every"
     for key, default in zip(keys, ("stabilized", "lo", "guess+restart", "preintegrated"), strict=True):
         if getattr(args, key) is None:
             setattr(args, key, default)
@@ -203,7 +215,7 @@ def run(args: argparse.Namespace) -> int:
     from jaxquad.io.carmen import in_time_order
     from jaxquad.slam import report
     from jaxquad.slam.params import DEFAULTS_FILE, LASER_FILE, load_params, slam_config
-    from jaxquad.slam.run import final_poses, map_grid, nodes_needed, run_fleet
+    from jaxquad.slam.run import final_poses, map_grid, nodes_needed, redraw_maps, run_fleet
 
     path = Path(args.input)
     if not path.is_file():
@@ -229,6 +241,8 @@ def run(args: argparse.Namespace) -> int:
     if not parallel.is_main():  # every process ran the same SLAM and holds every robot's results
         return 0
     final = final_poses(state, out)
+    if args.map_scans == "every":
+        state = redraw_maps(spec, params, state, out, x)
     t = np.asarray(x["t"], np.float64)
     stamp = np.asarray(x.get("stamp", t), np.float64)  # each scan's own time, for the files
     summary = {
@@ -241,6 +255,7 @@ def run(args: argparse.Namespace) -> int:
         "odometry": args.odometry if fmt == "robot" else "log",
         "vo_leg_odometry": args.vo_leg_odometry if fmt == "robot" and args.odometry == "vo" else None,
         "lo_constraints": lo_constraints,
+        "map_scans": args.map_scans,
         "params_defaults": [str(DEFAULTS_FILE)] + ([str(LASER_FILE)] if laser else []),  # in order
         "params_file": None if args.params is None else str(args.params),
         "params": values,

@@ -60,7 +60,7 @@ from jaxtyping import Array, Bool, Float, Int
 from jaxquad.kernels.control_flow import run_if
 from jaxquad.kernels.lie import se2, xy_theta
 from jaxquad.kernels.loop_closure import find_loop_closure
-from jaxquad.kernels.occupancy import OccupancyGrid, init_grid, insert_scan
+from jaxquad.kernels.occupancy import OccupancyGrid, init_grid, insert_scan, map_from_scans
 from jaxquad.kernels.posegraph import ROBUST_CAUCHY, ROBUST_NONE, PoseGraph, optimize
 from jaxquad.kernels.scan_grid import likelihood_grid, world_points
 from jaxquad.kernels.scan_match import match_scan
@@ -392,3 +392,16 @@ def scan_poses(state: SlamState, out: SlamOutput) -> Float[Array, "s 3"]:
     node = jnp.maximum(out.node, 0)
     poses = jax.vmap(_compose)(state.graph.poses[node], out.T_node_scan)
     return jnp.where((out.node >= 0)[:, None], poses, jnp.nan)
+
+
+def scan_map(
+    spec: SlamSpec, params: SlamParams, state: SlamState, out: SlamOutput, ranges: Float[Array, "s b"]
+) -> SlamState:
+    """The state with its map drawn from every scan, not only the nodes', each at its `scan_poses` pose
+    (scans before the first node left out; NaN rays ignored): the scans between nodes see the same walls
+    from other places, which the node scans alone leave thinner and patchier."""
+    base = scan_poses(state, out)
+    ok = jnp.all(jnp.isfinite(base), axis=1)
+    sensor = _sensor(params, jnp.where(ok[:, None], base, 0.0))
+    grid = map_from_scans(spec.grid, params.occupancy, sensor, ranges, state.bearings, ok)
+    return eqx.tree_at(lambda s: s.grid, state, grid)

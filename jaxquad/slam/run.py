@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -158,6 +159,26 @@ def run_fleet(spec: online.SlamSpec, params: online.SlamParams, x: dict, progres
 
 
 _scan_poses = jax.jit(jax.vmap(online.scan_poses))
+
+
+@functools.cache
+def _scan_maps(spec: online.SlamSpec):
+    return jax.jit(jax.vmap(functools.partial(online.scan_map, spec), in_axes=(None, 0, 0, 0)))
+
+
+def redraw_maps(spec: online.SlamSpec, params: online.SlamParams, state, out, x: dict, robots_per_call: int = 64):
+    """The final states (from `run_fleet`) with each robot's map drawn from every scan of `x` at its final pose
+    (`online.scan_map`), instead of from the node scans alone; `robots_per_call` robots' grids at a time."""
+    ranges = np.where(np.asarray(x["valid"], bool)[..., None], x["ranges"], np.nan).astype(np.float32)
+    n = ranges.shape[0]
+    fn = _scan_maps(spec)
+    parts = []
+    for a in range(0, n, robots_per_call):
+        part = lambda tree, a=a: jax.tree.map(lambda v: jnp.asarray(v[a : a + robots_per_call]), tree)  # noqa: E731
+        grid = fn(params, part(state), part(out), jnp.asarray(ranges[a : a + robots_per_call])).grid
+        parts.append(jax.tree.map(np.asarray, grid))
+    grid = jax.tree.map(lambda *g: np.concatenate(g), *parts)
+    return eqx.tree_at(lambda s: s.grid, state, grid)
 
 
 def final_poses(state, out) -> np.ndarray:
