@@ -399,7 +399,7 @@ def scan_map(
 ) -> SlamState:
     """The state with its map drawn from every scan, not only the nodes', each at its `scan_poses` pose
     (scans before the first node left out; NaN rays ignored): the scans between nodes see the same walls
-    from other places, which the node scans alone leave thinner and patchier."""
+    from other places, evidence that a map of the node scans alone leaves out."""
     base = scan_poses(state, out)
     ok = jnp.all(jnp.isfinite(base), axis=1)
     sensor = _sensor(params, jnp.where(ok[:, None], base, 0.0))
