@@ -163,7 +163,9 @@ _scan_poses = jax.jit(jax.vmap(online.scan_poses))
 
 @functools.cache
 def _scan_maps(spec: online.SlamSpec):
-    return jax.jit(jax.vmap(functools.partial(online.scan_map, spec), in_axes=(None, 0, 0, 0)))
+    """The jitted fleet `online.scan_map`, returning only the grids (the rest of the state is the caller's)."""
+    grid = lambda params, state, out, ranges: online.scan_map(spec, params, state, out, ranges).grid  # noqa: E731
+    return jax.jit(jax.vmap(grid, in_axes=(None, 0, 0, 0)))
 
 
 def redraw_maps(spec: online.SlamSpec, params: online.SlamParams, state, out, x: dict, robots_per_call: int = 64):
@@ -175,7 +177,7 @@ def redraw_maps(spec: online.SlamSpec, params: online.SlamParams, state, out, x:
     parts = []
     for a in range(0, n, robots_per_call):
         part = lambda tree, a=a: jax.tree.map(lambda v: jnp.asarray(v[a : a + robots_per_call]), tree)  # noqa: E731
-        grid = fn(params, part(state), part(out), jnp.asarray(ranges[a : a + robots_per_call])).grid
+        grid = fn(params, part(state), part(out), jnp.asarray(ranges[a : a + robots_per_call]))
         parts.append(jax.tree.map(np.asarray, grid))
     grid = jax.tree.map(lambda *g: np.concatenate(g), *parts)
     return eqx.tree_at(lambda s: s.grid, state, grid)
