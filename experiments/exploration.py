@@ -4,11 +4,13 @@ For each robot, world and variant it runs `jaxquad.explore.explore` with a fleet
 each from its own drawn start in the same generated world (seed `--seed`), and reports coverage
 (known-free area of each robot's map over the true reachable free area) every `--every` s: the mean,
 std, 10th and 90th percentiles over the runs; the final coverage, the share of runs reaching 95 %,
-the occupied-cell IoU of the final maps, outcome counts (explored, collided, lost, fallen) and
+the occupied-cell IoU of the final maps, what the maps call the reachable cells they miss (unknown,
+uncertain, occupied; and how many lie on boxes' faces), outcome counts (explored, collided, lost, fallen) and
 speed. It prints the rows as JSON (`--json` also writes them) and a Markdown table, and draws
 `coverage_vs_time.png` in `--figures` (mean and 10-90 % band per variant; a panel per robot and world).
 `--traces DIR` also keeps every run's path and writes `<robot>_<world>_<variant>.npz` per cell (times,
-SLAM position error, true and SLAM poses, goals, control modes, outcomes, loop closures):
+SLAM position error, true and SLAM poses, goals, control modes, outcomes, loop closures, the final maps beside the
+true map with its reachable and clear cells):
 `experiments/exploration_errors.py`
 draws the SLAM's error over time from it. Runs longer than one sitting: with `--checkpoint DIR --wall-budget S`
 the script saves the running cell to DIR after S s of wall time and exits with status 75; the same command
@@ -117,6 +119,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         "share_clear_reaching_95": float(np.mean(np.asarray(summary["coverage_clear"]["per_robot"]) >= GOAL)),
         "time_to_95_s_median": _time_to(times, cov, GOAL),
         "map_iou": summary["map_iou"],
+        "uncovered": summary["uncovered"],
         "outcomes": summary["outcomes"],
         "distance_m": summary["distance_m"],
         "slam_error_m": summary["slam_error_m"],
@@ -133,13 +136,16 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
 
 
 def save_traces(path: Path, result) -> None:
-    """Every run's traces of one cell (arrays of `ExploreResult`; the cell's settings as 0-d strings and numbers)."""
+    """Every run's traces of one cell (arrays of `ExploreResult`, the final maps with the true map, its reachable and
+    clear cells, origin and resolution; the cell's settings as 0-d strings and numbers)."""
     from jaxquad.io.atomic import atomic_open
 
     cfg = result.config
     keep = ("t", "error", "active", "coverage", "outcome", "end_t", "distance", "nodes", "loops", "starts")
     arrays = {k: np.asarray(getattr(result, k)) for k in keep}
     arrays |= {"true_pose": result.true_pose, "pose": result.pose, "goal": result.goal, "mode": result.mode}
+    arrays |= {"maps": result.maps, "reachable": result.reachable, "clear": result.clear, "true_map": result.truth.grid}
+    arrays |= {"map_origin": np.asarray(result.truth.origin), "map_resolution": result.truth.resolution}
     arrays |= {"robot": cfg.robot, "world": cfg.world}
     arrays |= {"variant": cfg.variant, "seed": cfg.seed, "randomize": cfg.randomize}
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -22,6 +22,7 @@ from jaxquad.explore.loop import MODES, OUTCOMES, coverage
 from jaxquad.explore.report import coverage_samples
 from jaxquad.io.jsonfile import to_json
 from jaxquad.kernels.occupancy import OccupancyGrid, occupancy_values
+from jaxquad.metrics import narrow_gaps
 
 PARAMS = nav.NavParams.default(n_samples=32, horizon=8, n_path_points=200, path_stride=1)
 EXPLORE = nav.ExploreParams.default()
@@ -83,6 +84,24 @@ def test_coverage_counts_known_free_reachable_cells():
     expected = sum(1 for v, r in zip(values.ravel(), reachable.ravel()) if r and 0 <= v < 20) / reachable.sum()
     got = float(jax.jit(coverage)(jnp.asarray(values), jnp.asarray(reachable)))
     assert got == pytest.approx(expected, rel=1e-6)
+
+
+def test_uncovered_cells_by_what_the_map_calls_them():
+    from jaxquad.explore.report import uncovered
+
+    maps = np.array([[[-1, 10, 19, 20], [65, 66, 100, -1]], [[0, 0, 0, 0], [0, 0, 0, 0]]], np.int8)
+    reachable = np.array([[True, True, True, True], [True, True, True, False]])
+    clear = np.array([[False, True, True, False], [True, True, True, True]])
+    got = uncovered(maps, reachable, clear)
+    # Robot 0, 7 reachable cells: unknown (0,0); free 10 and 19; uncertain 20 and 65; occupied 66 and 100; the
+    # unreachable unknown (1,3) is not counted; (0,0) and (0,3) lie on box faces.
+    np.testing.assert_allclose(got["unknown"], [1 / 7, 0])
+    np.testing.assert_allclose(got["uncertain"], [2 / 7, 0])
+    np.testing.assert_allclose(got["occupied"], [2 / 7, 0])
+    np.testing.assert_allclose(got["on_box_faces"], [2 / 7, 0])
+    np.testing.assert_allclose(1 - got["unknown"] - got["uncertain"] - got["occupied"], [
+        float(coverage(jnp.asarray(m), jnp.asarray(reachable))) for m in maps
+    ], rtol=1e-6)  # fmt: skip
 
 
 def test_coverage_samples_hold_the_last_tick_at_or_before_each_time():
@@ -154,12 +173,17 @@ def test_small_exploration_grows_its_map(run, tmp_path):
     assert cov[0, 0] < 0.1 and cov[-1, 0] > 0.35  # the map grew from nothing to over a third of the house
     assert np.all(np.diff(cov[1:, 0]) > -0.02)  # and, after the first scans settled, kept growing
     assert run.distance[0] > 2.0
+    gaps = narrow_gaps(run.truth)  # the house's gaps behind furniture: not counted as reachable
+    assert gaps.any() and run.reachable.any() and not (run.reachable & gaps).any()
     err = run.error[run.active[:, 0], 0]
     assert np.median(err) < 0.15
     summary = summarize(run, every=6.0)
     assert json.loads(to_json(summary))["coverage"]["per_robot"][0] > 0.35  # the final map (after `finish`)
     assert summary["per_robot"][0]["map_scores"]["precision"] > 0.3
     assert summary["coverage_over_time"]["t_s"] == times.tolist()
+    left = summary["per_robot"][0]["uncovered"]  # the reachable cells not free: a partition of 1 - coverage
+    assert left["unknown"] + left["uncertain"] + left["occupied"] == pytest.approx(1 - summary["coverage"]["mean"])
+    assert left["unknown"] > 0.3 and 0 < left["on_box_faces"] < 1 - summary["coverage"]["mean"]
     control = summary["per_robot"][0]["control_s"]  # every active tick in one mode
     assert sum(control.values()) == pytest.approx(run.active[:, 0].sum() * 0.096, rel=1e-4)
     assert control["mppi"] > 10.0 and summary["per_robot"][0]["mode_at_end"] in MODES

@@ -30,6 +30,7 @@ from jaxquad import parallel, slam
 from jaxquad.explore import checkpoint as ckpt
 from jaxquad.explore import loop as xl
 from jaxquad.kernels.occupancy import occupancy_values
+from jaxquad.metrics import narrow_gaps
 from jaxquad.nav import explore as nav_explore
 from jaxquad.nav import missions
 from jaxquad.nav.fleet import REPLAN_TICKS, body_params, loop_nav_params
@@ -109,7 +110,8 @@ class ExploreResult:
     config: ExploreConfig
     world: object  # sim.worlds.World (ground truth)
     truth: object  # OccupancyMap: the world's true map, on the cells of the robots' maps
-    reachable: np.ndarray  # (H, W) bool: true free cells connected to the starts (coverage's denominator)
+    reachable: np.ndarray  # (H, W) bool: true free cells connected to the starts, `metrics.narrow_gaps` left out
+    # (coverage's denominator)
     clear: np.ndarray  # (H, W) bool: the reachable cells whose whole square is off every box (coverage_clear's)
     maps: np.ndarray  # (N, H, W) int8: each robot's final SLAM map (-1 unknown, 0..100)
     starts: np.ndarray  # (N, 3) x y yaw
@@ -256,7 +258,8 @@ def explore(
     )
     world = fleet.worlds[0]
     truth = occupancy_map(world)
-    reachable = missions.reachable_cells(np.where(truth.grid == 0, 1.0, np.inf))
+    # Gaps a cell wide between boxes (furniture 2 cm off a wall) are neither seen nor reached: not counted.
+    reachable = missions.reachable_cells(np.where((truth.grid == 0) & ~narrow_gaps(truth), 1.0, np.inf))
     clear = clear_cells(world, truth, reachable)
     tick_dt = loop.frames_per_tick * fleet.frame_dt
     params = _params(cfg, loop, fleet, truth, tick_dt)

@@ -1,16 +1,18 @@
 """The summary and the pictures of an exploration run (`jaxquad.explore.fleet.ExploreResult`).
 
-summary (JSON-ready dict): the configuration, loop and SLAM parameters used; `coverage` (each robot's
-final map: known-free cells among the true reachable free cells, over those cells; per robot and
-mean); `coverage_clear` (the same over the reachable cells whose whole square is clear of every box: a
-cell a box's face passes through holds range returns, and no range-sensor map can show it free);
-`coverage_over_time` (sampled every `every` s: the map at the last tick at or before each
-time, held after a run ended); the map scores of each final map against the true map
-(`jaxquad.metrics.map_scores`: occupied-cell IoU, precision, recall within one cell); outcome
-counts and per-robot flags (explored, collided, lost, fallen); distance walked; the SLAM position
-error; for the traced robots, the seconds spent in each control mode (`loop.MODES`: MPPI, the goal turn,
-standing at the goal, recovery, the look-around turn, waiting) and the mode of each run's last tick, counted
-over the traced collided runs in `collided_while`; timing (compilation apart; each chunk's wall time in `chunk_s`).
+summary (JSON-ready dict): the configuration, loop and SLAM parameters used; `coverage` (each robot's final map:
+known-free cells among the true reachable free cells, over those cells; per robot and mean); `coverage_clear` (the
+same over the reachable cells whose whole square is clear of every box: a cell a box's face passes through holds
+range returns, and no range-sensor map can show it free); `coverage_over_time` (sampled every `every` s: the map at
+the last tick at or before each time, held after a run ended); `uncovered` (what each final map says of the
+reachable cells coverage misses, as shares of the reachable cells: `unknown`, no ray went there; `uncertain`, seen
+but neither free nor occupied by the map format's thresholds; `occupied`; and `on_box_faces`, those of them not
+clear of the boxes); the map scores of each final map against the true map (`jaxquad.metrics.map_scores`: occupied-
+cell IoU, precision, recall within one cell); outcome counts and per-robot flags (explored, collided, lost,
+fallen); distance walked; the SLAM position error; for the traced robots, the seconds spent in each control mode
+(`loop.MODES`: MPPI, the goal turn, standing at the goal, recovery, the look-around turn, waiting) and the mode of
+each run's last tick, counted over the traced collided runs in `collided_while`; timing (compilation apart; each
+chunk's wall time in `chunk_s`).
 """
 
 from __future__ import annotations
@@ -19,7 +21,8 @@ import dataclasses
 
 import numpy as np
 
-from jaxquad.explore.loop import COLLIDED, MODES, OUTCOMES, coverage
+from jaxquad.explore.loop import COLLIDED, FREE_BELOW, MODES, OUTCOMES, coverage
+from jaxquad.io.maps import OCCUPIED_THRESH
 from jaxquad.nav.report import timing
 
 SUMMARY_KIND = "jaxquad explore"
@@ -64,6 +67,21 @@ def _last_modes(result) -> np.ndarray:
     return np.where(active.any(axis=0), result.mode[last, np.arange(active.shape[1])], -1)
 
 
+def uncovered(maps: np.ndarray, reachable: np.ndarray, clear: np.ndarray) -> dict[str, np.ndarray]:
+    """Per map of `maps` (N, H, W; -1 unknown, else 0..100), the `reachable` cells it does not call free, by what
+    it calls them, each as a share (N,) of the reachable cells; `on_box_faces`: those of them outside `clear`."""
+    free = (maps >= 0) & (maps < FREE_BELOW)
+    missed = reachable & ~free
+    occupied = maps > 100 * OCCUPIED_THRESH
+    share = lambda m: m.sum(axis=(1, 2)) / max(int(reachable.sum()), 1)
+    return {
+        "unknown": share(missed & (maps < 0)),
+        "uncertain": share(missed & (maps >= 0) & ~occupied),
+        "occupied": share(missed & occupied),
+        "on_box_faces": share(missed & ~clear),
+    }
+
+
 def final_maps(result) -> list:
     from jaxquad.io.maps import OccupancyMap
 
@@ -82,6 +100,7 @@ def summarize(result, every: float = 5.0) -> dict:
     n_trace = result.mode.shape[1]
     tick_s = float(result.t[1] - result.t[0]) if len(result.t) > 1 else float(result.t[0])  # the first ends one in
     last_mode = _last_modes(result)
+    missed = uncovered(result.maps, result.reachable, result.clear)
     per_robot = []
     for i in range(n):
         err = result.error[result.active[:, i], i]
@@ -95,6 +114,7 @@ def summarize(result, every: float = 5.0) -> dict:
                 "end_s": None if np.isnan(result.end_t[i]) else float(result.end_t[i]),
                 "coverage": float(final[i]),
                 "coverage_clear": float(final_clear[i]),
+                "uncovered": {k: float(v[i]) for k, v in missed.items()},
                 "distance_m": float(result.distance[i]),
                 "slam_error_m": _stats(err),
                 "slam_nodes": int(result.nodes[i]),
@@ -117,6 +137,7 @@ def summarize(result, every: float = 5.0) -> dict:
         "coverage": {**_stats(final), "per_robot": final.tolist()},
         "clear_free_m2": float(result.clear.sum() * result.truth.resolution**2),
         "coverage_clear": {**_stats(final_clear), "per_robot": final_clear.tolist()},
+        "uncovered": {k: _stats(v) for k, v in missed.items()},
         "coverage_over_time": {
             "t_s": times.tolist(),
             "mean": cov_t.mean(axis=1).tolist(),

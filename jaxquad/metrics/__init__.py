@@ -13,7 +13,7 @@ from jaxquad.metrics._evaluate import (
     evaluate_batch,
     evaluate_poses,
 )
-from jaxquad.metrics._maps import MapScores, cells_in_view, map_scores, resample_map
+from jaxquad.metrics._maps import MapScores, cells_in_view, map_scores, narrow_gaps, resample_map
 from jaxquad.metrics._result import EvalResult
 from jaxquad.metrics._rpe import Pairs, pairs_by_frames, pairs_by_path, pairs_by_path_all, pairs_for, rpe
 from jaxquad.metrics._scan_map import scan_map_hits
@@ -55,6 +55,7 @@ __all__ = [
     "umeyama",
     "MapScores",
     "map_scores",
+    "narrow_gaps",
     "cells_in_view",
     "resample_map",
 ]
