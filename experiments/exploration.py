@@ -18,7 +18,8 @@ again goes on from there (finished cells are kept in DIR as `<cell>.json` and no
 
     python experiments/exploration.py [--runs 100] [--robots go2 badger] [--worlds house warehouse]
         [--variants baseline full] [--seconds T] [--seed 0] [--samples 256] [--horizon 30]
-        [--slam-params FILE] [--json rows.json] [--figures DIR] [--traces DIR] [--checkpoint DIR --wall-budget S]
+        [--slam-params FILE] [--map-miss-probability P] [--json rows.json] [--figures DIR] [--traces DIR]
+        [--checkpoint DIR --wall-budget S]
 
 Without `--seconds` each world runs its target time: 600 s in the house, 900 s in the warehouse.
 """
@@ -43,6 +44,7 @@ def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     from jaxquad.slam import load_params
 
     keep = ("runs", "seconds", "seed", "samples", "horizon", "every", "band_height", "band_reduce")
+    keep += ("map_miss_probability",)
     slam = load_params(args.slam_params) if args.slam_params else None  # the values: an edited file is another cell
     return {"robot": robot, "world": world, "variant": variant, "traces": args.traces, "slam_params": slam} | {
         k: getattr(args, k) for k in keep
@@ -89,6 +91,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         band_height=args.band_height,
         band_reduce=args.band_reduce,
         slam_params=args.slam_params,
+        map_miss_probability=args.map_miss_probability,
         trace_robots=args.runs if args.traces else 4,
         devices=args.devices,
     )
@@ -220,6 +223,12 @@ def main() -> int:
         "--slam-params", default=None, help="SLAM parameter file overriding jaxquad/slam/slam.yaml (default: none)"
     )
     p.add_argument(
+        "--map-miss-probability",
+        type=float,
+        default=0.3,
+        help="the map's occupancy of a cell a ray crosses, in place of the SLAM file's (default 0.3)",
+    )
+    p.add_argument(
         "--devices", type=int, default=None, help="split each cell's robots over the first N devices (default all)"
     )
     p.add_argument("--json", default=None, help="write the rows as JSON here (default: stdout only)")
@@ -234,6 +243,8 @@ def main() -> int:
     args = p.parse_args()
     if min(args.runs, args.band_height) < 1 or not (args.seconds is None or args.seconds > 0) or not args.every > 0:
         p.error("--runs and --band-height must be >= 1 and --seconds, --every positive")
+    if not 0.0 < args.map_miss_probability < 0.5:
+        p.error(f"--map-miss-probability must lie in (0, 0.5), got {args.map_miss_probability}")
     if args.wall_budget is not None and not (args.checkpoint and args.wall_budget > 0):
         p.error("--wall-budget must be positive and needs --checkpoint")
     from jaxquad.io.atomic import atomic_write_text, check_output_dir, check_output_file

@@ -52,6 +52,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--map-range", type=float, default=4.0, help="readings beyond this are no-returns for the map, m (default 4)"
     )
     parser.add_argument(
+        "--map-miss-probability",
+        type=float,
+        default=0.3,
+        help="the map's occupancy of a cell a ray crosses, in place of the SLAM file's (default 0.3)",
+    )
+    parser.add_argument(
         "--footprint-padding",
         type=float,
         default=0.1,
@@ -113,6 +119,8 @@ def run(args: argparse.Namespace) -> int:
     for option, value in (("--seconds", args.seconds), ("--every", args.every), ("--map-range", args.map_range)):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"{option} must be a positive number, got {value}")
+    if not 0.0 < args.map_miss_probability < 0.5:
+        raise ValueError(f"--map-miss-probability must lie in (0, 0.5), got {args.map_miss_probability}")
     if not (math.isfinite(args.footprint_padding) and args.footprint_padding >= 0):
         raise ValueError(f"--footprint-padding must be a number >= 0, got {args.footprint_padding}")
     if args.wall_budget is not None:
@@ -136,6 +144,7 @@ def run(args: argparse.Namespace) -> int:
         chunk_ticks=args.chunk_ticks,
         slam_params=args.slam_params,
         map_range=args.map_range,
+        map_miss_probability=args.map_miss_probability,
         footprint_padding=args.footprint_padding,
         band_height=args.band_height,
         band_reduce=args.band_reduce,

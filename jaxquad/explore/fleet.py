@@ -56,6 +56,10 @@ class ExploreConfig:
     slam_params: str | None = None  # SLAM parameter file (None: jaxquad/slam/slam.yaml)
     clearance: float = 0.75  # m from every box for the starts (a robot turning in place sweeps ~0.4 m)
     map_range: float = 4.0  # m: longer readings are no-returns for the map (depth noise, 1 % of z^2, is 16 cm at 4 m)
+    # The map's miss probability (a cell a ray crosses), in place of the SLAM file's: at 0.3 a cell is free after two
+    # crossing scans (0.35 needs three), and cells seen from few nodes near the walls become free. 100 Go2 runs in the
+    # house: coverage 0.896 -> 0.919, runs with 95 % of the clear cells 29 -> 57 (README, exploration).
+    map_miss_probability: float = 0.3
     # m added to the footprint's covering disks in the costmap (the planner's and MPPI's inscribed radius): the
     # SLAM pose is off by about 0.1 m (median), and the robot drove its disks to within a cell of mapped walls.
     footprint_padding: float = 0.1
@@ -77,6 +81,8 @@ class ExploreConfig:
         for name in ("seconds", "spin_rate", "finish_time", "map_range"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if not 0.0 < self.map_miss_probability < 0.5:
+            raise ValueError(f"map_miss_probability must lie in (0, 0.5), got {self.map_miss_probability}")
         if not self.footprint_padding >= 0:
             raise ValueError(f"footprint_padding must be >= 0, got {self.footprint_padding}")
         if self.chunk_ticks % REPLAN_TICKS:
@@ -95,12 +101,16 @@ class ExploreConfig:
         )
 
     def slam_values(self) -> dict:
-        """The SLAM parameters, with node slots for a node every `minimum_time_interval` of the run and the map's
-        range at most `map_range`."""
+        """The SLAM parameters, with node slots for a node every `minimum_time_interval` of the run, the map's
+        range at most `map_range` and its miss probability `map_miss_probability`."""
         values = slam.load_params(self.slam_params)
         nodes = math.ceil(self.seconds / max(values["minimum_time_interval"], 0.1)) + 2
         nodes = max(values["node_capacity"] if self.slam_params else 0, nodes)
-        return values | {"node_capacity": nodes, "max_laser_range": min(values["max_laser_range"], self.map_range)}
+        return values | {
+            "node_capacity": nodes,
+            "max_laser_range": min(values["max_laser_range"], self.map_range),
+            "occupancy_miss_probability": self.map_miss_probability,
+        }
 
 
 @dataclasses.dataclass
