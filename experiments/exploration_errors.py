@@ -10,7 +10,10 @@ the runs that ended `lost` in red, the others grey, with the median over the run
 heading panel adds the median absolute value of the reported yaw's random walk (`sim.sensors`'
 `yaw_walk`: 0.6745 x yaw_walk x sqrt(t)), which the leg odometry's heading follows. It prints, as JSON,
 the medians at each whole minute and per lost run its end time, its largest one-tick change of error
-and its final heading error.
+and its final heading error; with the final maps in the traces (`exploration.py --traces` keeps them since
+`6a3bdcf`), their scores against the true map per outcome (`jaxquad.metrics.map_scores`: IoU median and 10-90 %,
+precision and recall medians) and, over the runs that ended `explored`, the correlation of the map IoU with the
+run's median SLAM position error.
 """
 
 from __future__ import annotations
@@ -101,6 +104,37 @@ def summarize(d: dict, yaw_walk: float) -> dict:
             "lost_runs": runs}  # fmt: skip
 
 
+def _percentiles(x: np.ndarray, q: list[float]) -> list[float | None]:
+    """Percentiles `q` of the finite values of `x` (None where there are none: a map with no occupied cell has no
+    precision)."""
+    x = x[np.isfinite(x)]
+    return [float(v) for v in np.percentile(x, q)] if x.size else [None] * len(q)
+
+
+def map_summary(d: dict) -> dict:
+    """The final maps' scores by outcome, and how the explored runs' map IoU follows their median SLAM error."""
+    from jaxquad.explore import OUTCOMES
+    from jaxquad.io.maps import OccupancyMap
+    from jaxquad.metrics import map_scores
+
+    truth = OccupancyMap(d["true_map"], float(d["map_resolution"]), tuple(float(v) for v in d["map_origin"]))
+    scores = [map_scores(OccupancyMap(m, truth.resolution, truth.origin), truth) for m in d["maps"]]
+    iou, precision, recall = (np.array([getattr(s, k) for s in scores]) for k in ("iou", "precision", "recall"))
+    active = d["active"].astype(bool)
+    err = np.array([np.median(d["error"][active[:, i], i]) if active[:, i].any() else np.nan for i in range(len(iou))])
+    per_outcome = {}
+    for code, name in enumerate(OUTCOMES):
+        k = d["outcome"] == code
+        if k.any():
+            p10, p50, p90 = _percentiles(iou[k], [10, 50, 90])
+            per_outcome[name] = {"runs": int(k.sum()), "iou_median": p50, "iou_p10": p10, "iou_p90": p90,
+                                 "precision_median": _percentiles(precision[k], [50])[0],
+                                 "recall_median": _percentiles(recall[k], [50])[0]}  # fmt: skip
+    done = (d["outcome"] == OUTCOMES.index("explored")) & np.isfinite(iou) & np.isfinite(err)
+    r = float(np.corrcoef(iou[done], err[done])[0, 1]) if done.sum() > 2 else None
+    return {"per_outcome": per_outcome, "explored_iou_vs_median_error_correlation": r}
+
+
 def plot(d: dict, yaw_walk: float, path: Path) -> None:
     import matplotlib
 
@@ -155,7 +189,10 @@ def main() -> int:
 
     yaw_walk = float(SensorNoise.default().yaw_walk)
     d = load(args.traces)
-    print(json.dumps(summarize(d, yaw_walk), indent=1))
+    summary = summarize(d, yaw_walk)
+    if "maps" in d:
+        summary["maps"] = map_summary(d)
+    print(json.dumps(summary, indent=1))
     if args.out is not None:
         plot(d, yaw_walk, args.out)
         print(f"figure: {args.out}", file=sys.stderr)

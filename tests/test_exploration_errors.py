@@ -106,3 +106,35 @@ def test_traces_round_trip_and_bad_files(tmp_path):
     np.savez(tmp_path / "some_paths.npz", **(d | {"pose": d["pose"][:, :1], "true_pose": d["true_pose"][:, :1]}))
     with pytest.raises(SystemExit, match="every run's path"):
         errors.load(tmp_path / "some_paths.npz")
+
+
+def test_map_summary_by_outcome_and_against_the_slam_error():
+    from jaxquad.io.maps import OccupancyMap
+    from jaxquad.metrics import map_scores
+
+    truth = np.full((30, 30), -1, np.int8)
+    truth[3:27, 3:27] = 100
+    truth[4:26, 4:26] = 0
+    truth[12:16, 12:16] = 100
+    half = truth.copy()
+    half[:, :15] = np.where(half[:, :15] == 100, 0, half[:, :15])  # the left half's walls missed
+    shifted = np.roll(truth, 2, axis=0)  # two cells off: beyond the one-cell tolerance
+    maps = np.stack([truth, half, shifted, np.full_like(truth, -1)])
+    ticks = 20
+    error = np.tile(np.array([0.01, 0.05, 0.10, 0.60], np.float32), (ticks, 1))
+    outcome = np.array([OUTCOMES.index(o) for o in ("explored", "explored", "explored", "lost")])
+    d = dict(maps=maps, true_map=truth, map_origin=np.array([0.0, 0.0, 0.0]), map_resolution=np.float64(0.05),
+             error=error, active=np.ones((ticks, 4), bool), outcome=outcome)  # fmt: skip
+    got = errors.map_summary(d)
+    occ = lambda g: OccupancyMap(g, 0.05, (0.0, 0.0, 0.0))  # noqa: E731
+    iou = [map_scores(occ(m), occ(truth)).iou for m in maps[:3]]
+    assert iou[0] == 1.0 and iou[0] > iou[1] > 0 and iou[2] < 1
+    explored, lost = got["per_outcome"]["explored"], got["per_outcome"]["lost"]
+    assert explored["runs"] == 3 and explored["iou_median"] == pytest.approx(np.median(iou))
+    assert explored["iou_p90"] == pytest.approx(np.percentile(iou, 90)) and explored["recall_median"] <= 1.0
+    # An empty map: IoU and recall 0, and no precision (it has no occupied cell).
+    assert lost == {"runs": 1, "iou_median": 0.0, "iou_p10": 0.0, "iou_p90": 0.0, "precision_median": None,
+                    "recall_median": 0.0}  # fmt: skip
+    r = got["explored_iou_vs_median_error_correlation"]
+    assert r == pytest.approx(np.corrcoef(iou, [0.01, 0.05, 0.10])[0, 1]) and r < 0
+    assert "running" not in got["per_outcome"]
