@@ -48,6 +48,7 @@ from jaxquad.kernels.scan import BAND_REDUCTIONS
 from jaxquad.nav import explore
 from jaxquad.nav import navigate as nav
 from jaxquad.nav.body import Body, BodyParams, make_body, pose_error
+from jaxquad.nav.missions import known_free
 
 OUTCOMES = ("running", "explored", "collided", "lost", "fallen")
 RUNNING, EXPLORED, COLLIDED, LOST, FALLEN = range(len(OUTCOMES))
@@ -57,7 +58,6 @@ RUNNING, EXPLORED, COLLIDED, LOST, FALLEN = range(len(OUTCOMES))
 MODES = ("mppi", "goal_turn", "arrived", "recovery", "spin", "wait", "ended")
 MPPI, GOAL_TURN, ARRIVED, RECOVERY, SPIN, WAIT, ENDED = range(len(MODES))
 HOLD_RADIUS = 0.15  # m: a waiting robot farther than this from its hold point holds where it is instead
-FREE_BELOW = 20  # map value (0..100) below which a known cell is free: the map format's free_thresh 0.196
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,8 +143,8 @@ class ExploreFunctions(NamedTuple):
 
 
 def coverage(values: Int[Array, "H W"], reachable: Bool[Array, "H W"]) -> Float[Array, ""]:
-    """Known-free cells (0 <= value < FREE_BELOW) among the `reachable` cells, over their count."""
-    free = (values >= 0) & (values < FREE_BELOW) & reachable
+    """Known-free cells (`nav.missions.known_free`) among the `reachable` cells, over their count."""
+    free = known_free(values) & reachable
     return jnp.sum(free) / jnp.maximum(jnp.sum(reachable), 1)
 
 

@@ -21,8 +21,9 @@ import dataclasses
 
 import numpy as np
 
-from jaxquad.explore.loop import COLLIDED, FREE_BELOW, MODES, OUTCOMES, coverage
+from jaxquad.explore.loop import COLLIDED, MODES, OUTCOMES, coverage
 from jaxquad.io.maps import OCCUPIED_THRESH
+from jaxquad.nav.missions import known_free
 from jaxquad.nav.report import timing
 
 SUMMARY_KIND = "jaxquad explore"
@@ -70,8 +71,7 @@ def _last_modes(result) -> np.ndarray:
 def uncovered(maps: np.ndarray, reachable: np.ndarray, clear: np.ndarray) -> dict[str, np.ndarray]:
     """Per map of `maps` (N, H, W; -1 unknown, else 0..100), the `reachable` cells it does not call free, by what
     it calls them, each as a share (N,) of the reachable cells; `on_box_faces`: those of them outside `clear`."""
-    free = (maps >= 0) & (maps < FREE_BELOW)
-    missed = reachable & ~free
+    missed = reachable & ~known_free(maps)
     occupied = maps > 100 * OCCUPIED_THRESH
     share = lambda m: m.sum(axis=(1, 2)) / max(int(reachable.sum()), 1)
     return {

@@ -24,6 +24,11 @@ from jaxquad.sim.worlds import World, box_signed_distance, occupancy_map
 FREE_BELOW = 20  # occupancy (0..100) below which a known cell is free: the map format's free_thresh 0.196
 
 
+def known_free(values):
+    """The cells a map (-1 unknown, else occupancy 0..100; NumPy or JAX) calls free: known and below FREE_BELOW."""
+    return (values >= 0) & (values < FREE_BELOW)
+
+
 def truth_map(cfg, world: World) -> OccupancyMap:
     """The world's ground-truth occupancy map (0.05 m cells)."""
     del cfg  # the truth does not depend on how the world would be walked
@@ -100,7 +105,7 @@ def draw_poses(
 ) -> np.ndarray:
     """(count, 3) poses x, y (m), yaw (rad) on open cells, `clearance` (m) from every box of the world."""
     centers = occ.cell_centers()
-    ok = open_cells & (occ.grid >= 0) & (occ.grid < FREE_BELOW)
+    ok = open_cells & known_free(occ.grid)
     ok &= box_signed_distance(world, centers) >= clearance
     # Inside the outer walls too (a map built from scans may show free space leaking through them).
     xmin, ymin, xmax, ymax = world.bounds
