@@ -2,12 +2,13 @@
 
     python experiments/slam_accuracy.py [--robot go2 --robot badger] [--world house --world warehouse]
         [--robots 2] [--seconds 10] [--style aggressive] [--contacts truth] [--scan-hz 10]
-        [--lo-constraints off velocity preintegrated] [--band-reduce median] [--map-scans every|nodes]
+        [--lo-constraints off velocity preintegrated] [--band-height 5] [--band-reduce median]
+        [--map-scans every|nodes]
         [--throughput 1 4096] [--devices 1 2] [--params slam.yaml] [--json rows.json]
 
 For each robot and world it simulates a fleet (`jaxquad.sim.rollout`, depth on, `--robots` robots in
 up to 4 distinct worlds), runs the estimator once (leg-inertial odometry with `--contacts`, the
-stabilized scans at `--scan-hz`, each ray the `--band-reduce` of its 5-pixel band), then the online
+stabilized scans at `--scan-hz`, each ray the `--band-reduce` of its `--band-height`-pixel band), then the online
 SLAM (`jaxquad.slam`, the parameters of slam.yaml, overridden by `--params`) once per constraint kind on the same
 scans; the map scored is drawn from every scan at its final pose (`--map-scans nodes`: the nodes' scans alone).
 Printed as Markdown, means +- std over the fleet's robots: ATE (m, SE(3)-aligned, evo's definition)
@@ -63,7 +64,7 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list, edge_rows: 
         log,
         "stabilized",
         args.contacts,
-        5,
+        args.band_height,
         0.2,
         values["max_laser_range"],
         None,
@@ -176,6 +177,7 @@ def main() -> None:
         choices=("off", "velocity", "preintegrated"),
         help="constraint kinds (default: all three)",
     )
+    p.add_argument("--band-height", type=int, default=5, help="scan band height in px (default 5)")
     add_band_reduce_argument(p)
     p.add_argument(
         "--map-scans",
@@ -194,6 +196,8 @@ def main() -> None:
     p.add_argument("--json", default=None, help="also write every robot's report to this JSON file")
     args = p.parse_args()
     args.robot, args.world = args.robot or ["go2"], args.world or ["house"]
+    if args.band_height < 1:
+        p.error(f"--band-height must be >= 1, got {args.band_height}")
     if args.params:
         from jaxquad.slam import load_params
 
