@@ -10,8 +10,8 @@ speed. It prints the rows as JSON (`--json` also writes them) and a Markdown tab
 `coverage_vs_time.png` in `--figures` (mean and 10-90 % band per variant; a panel per robot and world).
 `--traces DIR` also keeps every run's path and writes `<robot>_<world>_<variant>.npz` per cell (times,
 SLAM position error, true and SLAM poses, goals, control modes, outcomes, loop closures, the final maps beside the
-true map with its reachable and clear cells):
-`experiments/exploration_errors.py`
+true map with its reachable and clear cells; `--trace-every S` keeps one sample of the time series every S s,
+so that long cells' traces stay small): `experiments/exploration_errors.py`
 draws the SLAM's error over time from it. Runs longer than one sitting: with `--checkpoint DIR --wall-budget S`
 the script saves the running cell to DIR after S s of wall time and exits with status 75; the same command
 again goes on from there (finished cells are kept in DIR as `<cell>.json` and not run again).
@@ -19,7 +19,7 @@ again goes on from there (finished cells are kept in DIR as `<cell>.json` and no
     python experiments/exploration.py [--runs 100] [--robots go2 badger] [--worlds house warehouse]
         [--variants baseline full] [--seconds T] [--seed 0] [--samples 256] [--horizon 30]
         [--slam-params FILE] [--map-miss-probability P] [--json rows.json] [--figures DIR] [--traces DIR]
-        [--checkpoint DIR --wall-budget S]
+        [--trace-every S] [--checkpoint DIR --wall-budget S]
 
 Without `--seconds` each world runs its target time: 600 s in the house, 900 s in the warehouse.
 """
@@ -101,7 +101,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         result = explore(cfg, checkpoint=checkpoint, wall_budget_s=wall_budget_s, progress=progress)
     print(f"{robot} {world} {variant}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
     if args.traces:
-        save_traces(Path(args.traces) / f"{name}.npz", result)
+        save_traces(Path(args.traces) / f"{name}.npz", result, args.trace_every)
     summary = summarize(result, args.every)
     times, cov = coverage_samples(result, args.every)
     final = np.asarray(summary["coverage"]["per_robot"])
@@ -138,15 +138,29 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
     return row
 
 
-def save_traces(path: Path, result) -> None:
-    """Every run's traces of one cell (arrays of `ExploreResult`, the final maps with the true map, its reachable and
-    clear cells, origin and resolution; the cell's settings as 0-d strings and numbers)."""
+SERIES = ("t", "error", "active", "coverage", "true_pose", "pose", "goal", "mode")  # `ExploreResult`'s (ticks, ...) arrays
+
+
+def trace_ticks(t: np.ndarray, every_s: float) -> np.ndarray:
+    """Indices of the ticks (end times `t`, evenly spaced) kept at one sample every `every_s` s: every k-th tick, k
+    the whole number of ticks nearest `every_s` (at least 1; 0 s keeps every tick), and the last tick."""
+    tick = float(t[1] - t[0]) if len(t) > 1 else 0.0
+    step = max(1, round(every_s / tick)) if tick > 0 else 1
+    idx = np.arange(step - 1, len(t), step)
+    return idx if idx.size and idx[-1] == len(t) - 1 else np.append(idx, len(t) - 1).astype(idx.dtype)
+
+
+def save_traces(path: Path, result, every_s: float = 0.0) -> None:
+    """Every run's traces of one cell (arrays of `ExploreResult`, the time series at `trace_ticks(t, every_s)`, the
+    final maps with the true map, its reachable and clear cells, origin and resolution; the cell's settings as 0-d
+    strings and numbers)."""
     from jaxquad.io.atomic import atomic_open
 
     cfg = result.config
-    keep = ("t", "error", "active", "coverage", "outcome", "end_t", "distance", "nodes", "loops", "starts")
-    arrays = {k: np.asarray(getattr(result, k)) for k in keep}
-    arrays |= {"true_pose": result.true_pose, "pose": result.pose, "goal": result.goal, "mode": result.mode}
+    ticks = trace_ticks(np.asarray(result.t), every_s)
+    arrays = {k: np.asarray(getattr(result, k))[ticks] for k in SERIES}
+    keep = ("outcome", "end_t", "distance", "nodes", "loops", "starts")
+    arrays |= {k: np.asarray(getattr(result, k)) for k in keep}
     arrays |= {"maps": result.maps, "reachable": result.reachable, "clear": result.clear, "true_map": result.truth.grid}
     arrays |= {"map_origin": np.asarray(result.truth.origin), "map_resolution": result.truth.resolution}
     arrays |= {"robot": cfg.robot, "world": cfg.world}
@@ -234,6 +248,12 @@ def main() -> int:
     p.add_argument("--json", default=None, help="write the rows as JSON here (default: stdout only)")
     p.add_argument("--figures", default=None, help="folder for coverage_vs_time.png (default: none)")
     p.add_argument("--traces", default=None, help="folder for every run's traces, an .npz per cell (default: none)")
+    p.add_argument(
+        "--trace-every",
+        type=float,
+        default=0.0,
+        help="with --traces: one sample of the time series every this many s (default 0: every control tick)",
+    )
     p.add_argument("--checkpoint", default=None,
                    help="folder for runs saved when --wall-budget runs out and for finished cells; the same command "
                         "again goes on from them (default: none)")  # fmt: skip
@@ -243,6 +263,8 @@ def main() -> int:
     args = p.parse_args()
     if min(args.runs, args.band_height) < 1 or not (args.seconds is None or args.seconds > 0) or not args.every > 0:
         p.error("--runs and --band-height must be >= 1 and --seconds, --every positive")
+    if not args.trace_every >= 0:
+        p.error(f"--trace-every must be >= 0 s, got {args.trace_every}")
     if not 0.0 < args.map_miss_probability < 0.5:
         p.error(f"--map-miss-probability must lie in (0, 0.5), got {args.map_miss_probability}")
     if args.wall_budget is not None and not (args.checkpoint and args.wall_budget > 0):

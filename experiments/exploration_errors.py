@@ -9,8 +9,9 @@ Two panels: the SLAM position error (m) and the absolute heading error (deg) of 
 the runs that ended `lost` in red, the others grey, with the median over the runs still active; the
 heading panel adds the median absolute value of the reported yaw's random walk (`sim.sensors`'
 `yaw_walk`: 0.6745 x yaw_walk x sqrt(t)), which the leg odometry's heading follows. It prints, as JSON,
-the medians at each whole minute and per lost run its end time, its largest one-tick change of error
-and its final heading error; with the final maps in the traces (`exploration.py --traces` keeps them since
+the medians at each whole minute and per lost run its end time, its largest change of error from one sample to
+the next (`sample_s` apart: a control tick, or `exploration.py --trace-every`'s period) and its final heading
+error; with the final maps in the traces (`exploration.py --traces` keeps them since
 `6a3bdcf`), their scores against the true map per outcome (`jaxquad.metrics.map_scores`: IoU median and 10-90 %,
 precision and recall medians) and, over the runs that ended `explored`, the correlation of the map IoU with the
 run's median SLAM position error.
@@ -100,8 +101,8 @@ def summarize(d: dict, yaw_walk: float) -> dict:
             "largest_tick_change_m": float(np.max(np.abs(np.diff(err[: k + 1, i])), initial=0.0)),
             "final_heading_error_deg": float(heading[k, i]),
         })  # fmt: skip
-    return {"runs": int(err.shape[1]), "lost": len(runs), "randomized_noise": randomize, "per_minute": minutes,
-            "lost_runs": runs}  # fmt: skip
+    return {"runs": int(err.shape[1]), "lost": len(runs), "randomized_noise": randomize, "sample_s": tick,
+            "per_minute": minutes, "lost_runs": runs}  # fmt: skip
 
 
 def _percentiles(x: np.ndarray, q: list[float]) -> list[float | None]:

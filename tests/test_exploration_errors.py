@@ -138,3 +138,36 @@ def test_map_summary_by_outcome_and_against_the_slam_error():
     r = got["explored_iou_vs_median_error_correlation"]
     assert r == pytest.approx(np.corrcoef(iou, [0.01, 0.05, 0.10])[0, 1]) and r < 0
     assert "running" not in got["per_outcome"]
+
+
+def test_trace_ticks_keep_every_kth_tick_and_the_last():
+    idx = exploration.trace_ticks(T, 0.96)  # 10 ticks of 0.096 s
+    np.testing.assert_array_equal(idx, np.append(np.arange(9, len(T), 10), len(T) - 1))
+    np.testing.assert_array_equal(exploration.trace_ticks(T, 0.0), np.arange(len(T)))
+    np.testing.assert_array_equal(exploration.trace_ticks(T, 0.04), np.arange(len(T)))  # under a tick: every tick
+    np.testing.assert_array_equal(exploration.trace_ticks(T[:20], 0.96), [9, 19])  # the last tick already kept
+    np.testing.assert_array_equal(exploration.trace_ticks(T[:1], 5.0), [0])
+
+
+def test_thinned_traces_keep_the_series_at_the_kept_ticks_and_every_map(tmp_path):
+    d = _traces()
+    config = SimpleNamespace(robot="go2", world="house", variant="full", seed=3, randomize=True)
+    extra = dict(coverage=d["error"] / 10, distance=np.ones(3), nodes=np.ones(3), loops=np.zeros(3))
+    extra |= dict(starts=np.zeros((3, 3)), goal=d["pose"] + 1.0, mode=np.full(d["error"].shape, 2, np.int8))
+    maps = np.random.default_rng(2).integers(-1, 101, (3, 4, 5)).astype(np.int8)
+    truth = SimpleNamespace(grid=maps[0], origin=(0.0, 0.0, 0.0), resolution=0.05)
+    extra |= dict(maps=maps, reachable=maps[1] < 20, clear=maps[2] < 20, truth=truth)
+    exploration.save_traces(tmp_path / "cell.npz", SimpleNamespace(config=config, **d, **extra), every_s=0.96)
+    back = errors.load(tmp_path / "cell.npz")
+    k = np.append(np.arange(9, len(T), 10), len(T) - 1)
+    for name in ("t", "error", "active", "pose", "true_pose"):
+        np.testing.assert_array_equal(back[name], d[name][k])
+    np.testing.assert_array_equal(back["coverage"], extra["coverage"][k])
+    np.testing.assert_array_equal(back["goal"], extra["goal"][k])
+    np.testing.assert_array_equal(back["maps"], maps)
+    np.testing.assert_array_equal(back["end_t"], d["end_t"])
+    s = errors.summarize(back, yaw_walk=np.deg2rad(0.2))
+    assert s["sample_s"] == pytest.approx(0.96, rel=1e-5)
+    (run,) = s["lost_runs"]  # run 1's last active tick, 800, is no kept one: its last kept sample is tick 799
+    assert run["run"] == 1 and run["final_heading_error_deg"] == pytest.approx(np.degrees(0.04), abs=1e-3)
+    assert s["per_minute"][0]["t_s"] <= 60.0 and s["per_minute"][0]["active_runs"] == 3
