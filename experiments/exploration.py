@@ -138,7 +138,8 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
     return row
 
 
-SERIES = ("t", "error", "active", "coverage", "true_pose", "pose", "goal", "mode")  # `ExploreResult`'s (ticks, ...) arrays
+# `ExploreResult`'s (ticks, ...) arrays, which --trace-every thins
+SERIES = ("t", "error", "active", "coverage", "true_pose", "pose", "goal", "mode")
 
 
 def trace_ticks(t: np.ndarray, every_s: float) -> np.ndarray:
