@@ -219,6 +219,7 @@ def plot(rows: list[dict], folder: Path) -> Path:
 def main() -> int:
     from jaxquad.cli import add_band_reduce_argument
     from jaxquad.explore.checkpoint import PAUSED_STATUS, CheckpointError, Paused
+    from jaxquad.explore.cli import add_map_miss_probability_argument
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--runs", type=int, default=4, help="robots per cell, each from its own start (default 4)")
@@ -237,12 +238,7 @@ def main() -> int:
     p.add_argument(
         "--slam-params", default=None, help="SLAM parameter file overriding jaxquad/slam/slam.yaml (default: none)"
     )
-    p.add_argument(
-        "--map-miss-probability",
-        type=float,
-        default=0.3,
-        help="the map's occupancy of a cell a ray crosses, in place of the SLAM file's (default 0.3)",
-    )
+    add_map_miss_probability_argument(p)
     p.add_argument(
         "--devices", type=int, default=None, help="split each cell's robots over the first N devices (default all)"
     )

@@ -20,6 +20,19 @@ from jaxquad.explore.checkpoint import PAUSED_STATUS
 from jaxquad.explore.report import SUMMARY_KIND
 
 
+def add_map_miss_probability_argument(parser: argparse.ArgumentParser) -> None:
+    """The shared `--map-miss-probability` option (`ExploreConfig.map_miss_probability`, whose default it shows)."""
+    from jaxquad.explore.fleet import ExploreConfig
+
+    default = ExploreConfig.map_miss_probability
+    parser.add_argument(
+        "--map-miss-probability",
+        type=float,
+        default=default,
+        help=f"the map's occupancy of a cell a ray crosses, in place of the SLAM file's (default {default})",
+    )
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from jaxquad.cli import add_band_reduce_argument, add_devices_argument
     from jaxquad.explore.fleet import VARIANTS
@@ -51,12 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--map-range", type=float, default=4.0, help="readings beyond this are no-returns for the map, m (default 4)"
     )
-    parser.add_argument(
-        "--map-miss-probability",
-        type=float,
-        default=0.3,
-        help="the map's occupancy of a cell a ray crosses, in place of the SLAM file's (default 0.3)",
-    )
+    add_map_miss_probability_argument(parser)
     parser.add_argument(
         "--footprint-padding",
         type=float,
