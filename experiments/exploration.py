@@ -44,7 +44,7 @@ def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     from jaxquad.slam import load_params
 
     keep = ("runs", "seconds", "seed", "samples", "horizon", "every", "band_height", "band_reduce")
-    keep += ("map_miss_probability",)
+    keep += ("map_miss_probability", "revisit_after")
     slam = load_params(args.slam_params) if args.slam_params else None  # the values: an edited file is another cell
     return {"robot": robot, "world": world, "variant": variant, "traces": args.traces, "slam_params": slam} | {
         k: getattr(args, k) for k in keep
@@ -73,7 +73,8 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
     done = _finished_row(args, robot, world, variant)
     if done is not None and done.exists():
         saved = json.loads(done.read_text())
-        if {"slam_params": None} | saved.get("settings", {}) != settings:  # rows kept before --slam-params had none
+        # rows kept before --slam-params and --revisit-after had neither
+        if {"slam_params": None, "revisit_after": 0.0} | saved.get("settings", {}) != settings:
             raise CheckpointError(f"{done}: a finished cell of other settings; remove it or choose another folder")
         print(f"{name}: finished earlier ({done})", file=sys.stderr, flush=True)
         return saved["row"]
@@ -92,6 +93,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         band_reduce=args.band_reduce,
         slam_params=args.slam_params,
         map_miss_probability=args.map_miss_probability,
+        revisit_after=args.revisit_after,
         trace_robots=args.runs if args.traces else 4,
         devices=args.devices,
     )
@@ -125,6 +127,8 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         "uncovered": summary["uncovered"],
         "outcomes": summary["outcomes"],
         "distance_m": summary["distance_m"],
+        "revisits": summary["revisits"],
+        "revisits_closed": summary["revisits_closed"],
         "slam_error_m": summary["slam_error_m"],
         "compile_s": result.compile_s,
         "run_s": result.run_s,
@@ -139,7 +143,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
 
 
 # `ExploreResult`'s (ticks, ...) arrays, which --trace-every thins
-SERIES = ("t", "error", "active", "coverage", "true_pose", "pose", "goal", "mode")
+SERIES = ("t", "error", "active", "coverage", "true_pose", "pose", "goal", "mode", "revisiting")
 
 
 def trace_ticks(t: np.ndarray, every_s: float) -> np.ndarray:
@@ -160,7 +164,7 @@ def save_traces(path: Path, result, every_s: float = 0.0) -> None:
     cfg = result.config
     ticks = trace_ticks(np.asarray(result.t), every_s)
     arrays = {k: np.asarray(getattr(result, k))[ticks] for k in SERIES}
-    keep = ("outcome", "end_t", "distance", "nodes", "loops", "starts")
+    keep = ("outcome", "end_t", "distance", "nodes", "loops", "revisits", "revisits_closed", "starts")
     arrays |= {k: np.asarray(getattr(result, k)) for k in keep}
     arrays |= {"maps": result.maps, "reachable": result.reachable, "clear": result.clear, "true_map": result.truth.grid}
     arrays |= {"map_origin": np.asarray(result.truth.origin), "map_resolution": result.truth.resolution}
@@ -219,7 +223,7 @@ def plot(rows: list[dict], folder: Path) -> Path:
 def main() -> int:
     from jaxquad.cli import add_band_reduce_argument
     from jaxquad.explore.checkpoint import PAUSED_STATUS, CheckpointError, Paused
-    from jaxquad.explore.cli import add_map_miss_probability_argument
+    from jaxquad.explore.cli import add_map_miss_probability_argument, add_revisit_after_argument, check_revisit_after
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--runs", type=int, default=4, help="robots per cell, each from its own start (default 4)")
@@ -239,6 +243,7 @@ def main() -> int:
         "--slam-params", default=None, help="SLAM parameter file overriding jaxquad/slam/slam.yaml (default: none)"
     )
     add_map_miss_probability_argument(p)
+    add_revisit_after_argument(p)
     p.add_argument(
         "--devices", type=int, default=None, help="split each cell's robots over the first N devices (default all)"
     )
@@ -264,6 +269,10 @@ def main() -> int:
         p.error(f"--trace-every must be >= 0 s, got {args.trace_every}")
     if not 0.0 < args.map_miss_probability < 0.5:
         p.error(f"--map-miss-probability must lie in (0, 0.5), got {args.map_miss_probability}")
+    try:
+        check_revisit_after(args.revisit_after)
+    except ValueError as e:
+        p.error(str(e))
     if args.wall_budget is not None and not (args.checkpoint and args.wall_budget > 0):
         p.error("--wall-budget must be positive and needs --checkpoint")
     from jaxquad.io.atomic import atomic_write_text, check_output_dir, check_output_file

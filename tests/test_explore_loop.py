@@ -289,3 +289,26 @@ def test_clear_cells_are_the_reachable_squares_no_box_touches():
     sure = np.abs(sd) > 0.006
     np.testing.assert_array_equal(got[sure], want[sure])
     assert 0 < (reachable & ~got).sum() < 0.15 * reachable.sum()  # a band along every face, not the whole house
+
+
+@pytest.mark.slow
+def test_revisits_drive_back_to_where_the_robot_was(run, monkeypatch):
+    """The fixture's run again with active loop closing after 2 s without a closure, to nodes 10 s old or more (the
+    defaults, 60 s, do not fit a 48 s run): revisits begin, and every revisit goal is a pose the robot's SLAM path
+    passed through at least 10 s before (node poses move only by loop closures, centimetres here)."""
+    from jaxquad.explore import explore
+    from jaxquad.explore.report import summarize
+    from jaxquad.nav import revisit
+
+    default = revisit.RevisitParams.default
+    monkeypatch.setattr(revisit.RevisitParams, "default", lambda **kw: default(**kw, min_age=10.0))
+    again = explore(dataclasses.replace(run.config, revisit_after=2.0))
+    assert run.revisits[0] == 0 and not run.revisiting.any()
+    assert again.revisits[0] >= 1 and again.revisiting[:, 0].any()
+    ticks = np.flatnonzero(again.revisiting[:, 0])
+    for k in ticks:
+        earlier = again.pose[: k + 1, 0][again.t[: k + 1] <= again.t[k] - 10.0]
+        assert np.min(np.linalg.norm(earlier[:, :2] - again.goal[k, 0, :2], axis=1)) < 0.1
+    per_robot = summarize(again, 6.0)["per_robot"][0]
+    assert per_robot["revisits"] == again.revisits[0] and per_robot["revisits_closed"] <= again.revisits[0]
+    assert per_robot["revisit_s"] == pytest.approx(len(ticks) * 0.096, rel=1e-4)

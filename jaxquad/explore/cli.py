@@ -33,6 +33,28 @@ def add_map_miss_probability_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_revisit_after_argument(parser: argparse.ArgumentParser) -> None:
+    """The shared `--revisit-after` option (`ExploreConfig.revisit_after`, whose default it shows)."""
+    from jaxquad.explore.fleet import ExploreConfig
+
+    default = ExploreConfig.revisit_after
+    parser.add_argument(
+        "--revisit-after",
+        type=float,
+        default=default,
+        help="s without a loop closure before the robot goes back to a place it mapped a minute or more ago to "
+        f"close one (active loop closing); 0: never (default {default:g})",
+    )
+
+
+def check_revisit_after(value: float) -> None:
+    """A one-line error for a `--revisit-after` that is not a finite number >= 0."""
+    import math
+
+    if not (math.isfinite(value) and value >= 0):
+        raise ValueError(f"--revisit-after must be a number of seconds >= 0 (0: never), got {value}")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from jaxquad.cli import add_band_reduce_argument, add_devices_argument
     from jaxquad.explore.fleet import VARIANTS
@@ -65,6 +87,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--map-range", type=float, default=4.0, help="readings beyond this are no-returns for the map, m (default 4)"
     )
     add_map_miss_probability_argument(parser)
+    add_revisit_after_argument(parser)
     parser.add_argument(
         "--footprint-padding",
         type=float,
@@ -129,6 +152,7 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"{option} must be a positive number, got {value}")
     if not 0.0 < args.map_miss_probability < 0.5:
         raise ValueError(f"--map-miss-probability must lie in (0, 0.5), got {args.map_miss_probability}")
+    check_revisit_after(args.revisit_after)
     if not (math.isfinite(args.footprint_padding) and args.footprint_padding >= 0):
         raise ValueError(f"--footprint-padding must be a number >= 0, got {args.footprint_padding}")
     if args.wall_budget is not None:
@@ -153,6 +177,7 @@ def run(args: argparse.Namespace) -> int:
         slam_params=args.slam_params,
         map_range=args.map_range,
         map_miss_probability=args.map_miss_probability,
+        revisit_after=args.revisit_after,
         footprint_padding=args.footprint_padding,
         band_height=args.band_height,
         band_reduce=args.band_reduce,

@@ -32,7 +32,7 @@ from jaxquad.explore import loop as xl
 from jaxquad.kernels.occupancy import occupancy_values
 from jaxquad.metrics import narrow_gaps
 from jaxquad.nav import explore as nav_explore
-from jaxquad.nav import missions
+from jaxquad.nav import missions, revisit
 from jaxquad.nav.fleet import REPLAN_TICKS, body_params, loop_nav_params
 from jaxquad.nav.fleet_loop import compile_chunk, keep_first, loop_functions, place_robots, start_qpos
 
@@ -65,6 +65,9 @@ class ExploreConfig:
     footprint_padding: float = 0.1
     spin_rate: float = 0.6  # rad/s, turning in place without a frontier goal
     finish_time: float = 12.0  # s without a frontier before exploration counts as finished (one turn and more)
+    # s without an accepted loop closure before the robot drives back to a place mapped a minute or more ago to close
+    # one (active loop closing, `jaxquad.nav.revisit`); 0: never.
+    revisit_after: float = 0.0
     contacts: str = "truth"  # the estimator's contact source
     band_height: int = 1  # scan band rows
     band_reduce: str = "median"  # each ray's range from its band: "median" or the paper's "min" (kernels.scan)
@@ -81,6 +84,8 @@ class ExploreConfig:
         for name in ("seconds", "spin_rate", "finish_time", "map_range"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if not (self.revisit_after >= 0 and math.isfinite(self.revisit_after)):
+            raise ValueError(f"revisit_after must be >= 0 s (0: never), got {self.revisit_after}")
         if not 0.0 < self.map_miss_probability < 0.5:
             raise ValueError(f"map_miss_probability must lie in (0, 0.5), got {self.map_miss_probability}")
         if not self.footprint_padding >= 0:
@@ -130,10 +135,13 @@ class ExploreResult:
     distance: np.ndarray  # (N,) m walked
     nodes: np.ndarray  # (N,) SLAM nodes
     loops: np.ndarray  # (N,) loop closures accepted
+    revisits: np.ndarray  # (N,) revisits begun (`ExploreConfig.revisit_after`)
+    revisits_closed: np.ndarray  # (N,) revisits that ended with a loop closure
     t: np.ndarray  # (T,) s
     coverage: np.ndarray  # (T, N)
     error: np.ndarray  # (T, N) m, SLAM position error
     active: np.ndarray  # (T, N)
+    revisiting: np.ndarray  # (T, N) the goal was a revisit
     true_pose: np.ndarray  # (T, n_trace, 3)
     pose: np.ndarray  # (T, n_trace, 3) SLAM pose
     goal: np.ndarray  # (T, n_trace, 3) the frontier goal, x y yaw
@@ -175,6 +183,7 @@ def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_d
         # A known cell more likely free than not is free for the frontiers (the map format's 0.196 needs four
         # free readings of a cell in this SLAM's log-odds, so the edge of what was seen would never be a frontier).
         explore=nav_explore.ExploreParams.default(free_thresh=50.0),
+        revisit=revisit.RevisitParams.default(after=cfg.revisit_after or np.inf),
         slam_spec=spec,
         slam=slam_params,
         body=body,
@@ -332,10 +341,13 @@ def explore(
         distance=np.asarray(states.distance)[:n],
         nodes=nodes,
         loops=loops,
+        revisits=np.asarray(states.revisit.started)[:n],
+        revisits_closed=np.asarray(states.revisit.closed)[:n],
         t=trace.t[:, 0],
         coverage=trace.coverage[:, :n],
         error=trace.error[:, :n],
         active=trace.active[:, :n],
+        revisiting=trace.revisiting[:, :n],
         true_pose=trace.true_pose,
         pose=trace.pose,
         goal=trace.goal,

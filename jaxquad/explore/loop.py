@@ -11,8 +11,10 @@ last period (`slam.refresh_map`: the fleet's SLAM skips the redraw in its own st
 robot's closure made every robot wait for a redraw over all its nodes, nearly every tick in a fleet of 100),
 becomes a costmap, `jaxquad.nav.explore.update` picks the nearest reachable
 frontier (progress check and blacklist included) and the plan to it is read off the robot's own
-cost-to-go (`nav.plan_from_start`). Between plans MPPI follows it on that costmap. Without a frontier
-goal the robot turns in place (`spin_rate`) to look around: at the start, before its map has free
+cost-to-go (`nav.plan_from_start`). Between plans MPPI follows it on that costmap. With active loop closing
+(`jaxquad.nav.revisit`, off unless its `after` is finite) the goal is for a while an old SLAM node's pose
+instead, when the SLAM has gone that long without a loop closure; the frontier's progress clock waits.
+Without a frontier goal the robot turns in place (`spin_rate`) to look around: at the start, before its map has free
 cells, and when exploration seems done; where the turn would bring its footprint onto a known obstacle of
 the costmap (`kernels.critics.turn_is_clear`) it waits instead, holding the SLAM pose where the wait began
 (`hold_gain`: a trotting gait told to stand still drifts, by centimetres a second). Exploration is finished when no
@@ -45,7 +47,7 @@ from jaxquad.kernels import critics, mppi
 from jaxquad.kernels.costmap import CostGrid
 from jaxquad.kernels.occupancy import occupancy_values
 from jaxquad.kernels.scan import BAND_REDUCTIONS
-from jaxquad.nav import explore
+from jaxquad.nav import explore, revisit
 from jaxquad.nav import navigate as nav
 from jaxquad.nav.body import Body, BodyParams, make_body, pose_error
 from jaxquad.nav.missions import known_free
@@ -87,6 +89,7 @@ class ExploreLoopParams(eqx.Module):
 
     nav: nav.NavParams
     explore: explore.ExploreParams
+    revisit: revisit.RevisitParams
     slam_spec: slam.SlamSpec  # static: capacities, search sizes, the map's cells
     slam: slam.SlamParams
     body: BodyParams
@@ -111,6 +114,7 @@ class ExploreLoopState(eqx.Module):
     pose: Float[Array, " 3"]  # the SLAM's pose of the base, map (= world) frame
     grid: CostGrid  # costmap of the SLAM map at the last planning period
     explore: explore.ExploreState
+    revisit: revisit.RevisitState
     nav: nav.NavState
     cmd: Float[Array, " 3"]  # body command to the gait controller
     waiting: Bool[Array, ""]  # no frontier goal and no clear turn: holding `held_at`
@@ -131,8 +135,9 @@ class ExploreOutput(eqx.Module):
     pose: Float[Array, "*B 3"]  # SLAM pose
     error: Float[Array, "*B"]  # m, SLAM position error
     coverage: Float[Array, "*B"]  # known-free over true reachable free cells
-    goal: Float[Array, "*B 3"]  # the frontier goal
+    goal: Float[Array, "*B 3"]  # the frontier goal, or the revisited node's pose
     has_goal: Bool[Array, "*B"]
+    revisiting: Bool[Array, "*B"]  # the goal is a revisit (`jaxquad.nav.revisit`)
     mode: Int[Array, "*B"]  # MODES code: what commanded the robot on the tick
     active: Bool[Array, "*B"]  # the run had not ended at the start of the tick
 
@@ -146,6 +151,11 @@ def coverage(values: Int[Array, "H W"], reachable: Bool[Array, "H W"]) -> Float[
     """Known-free cells (`nav.missions.known_free`) among the `reachable` cells, over their count."""
     free = known_free(values) & reachable
     return jnp.sum(free) / jnp.maximum(jnp.sum(reachable), 1)
+
+
+def goal_of(ex: explore.ExploreState, rv: revisit.RevisitState) -> tuple[Float[Array, " 3"], Bool[Array, ""]]:
+    """(goal pose, whether there is one): the revisited node while a revisit lasts, else the frontier goal."""
+    return jnp.where(rv.active, rv.goal, ex.goal), rv.active | ex.has_goal
 
 
 def idle_command(
@@ -193,20 +203,30 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
 
     def plan(params: ExploreLoopParams, s: ExploreLoopState, period: float):
         """The planning period: the SLAM map (redrawn if a loop closure moved its nodes), its costmap, the next
-        frontier goal and the plan to it."""
+        goal (a revisit of an old node, else a frontier) and the plan to it."""
         g = params.slam_spec.grid
         slam_state = slam.refresh_map(params.slam_spec, params.slam, s.slam)
         values = occupancy_values(slam_state.grid)
         grid = nav.cost_grid(params.nav, values, jnp.array([g.origin_x, g.origin_y], jnp.float32), g.resolution)
         weight, value = explore.robot_value(params.explore, grid, s.pose)
-        ex, choice = explore.update(params.explore, s.explore, values, grid, s.pose, period, value)
-        p = nav.plan_from_start(params.nav, grid, weight, value, choice.goal_rc, s.pose)
-        p = eqx.tree_at(lambda x: x.ok, p, p.ok & choice.found)
+        nodes = slam_state.graph
+        rv = revisit.update(
+            params.revisit, s.revisit, nodes.poses, slam_state.node_t, nodes.node_mask, slam_state.loops,
+            s.body.sim.t, s.pose, grid, value, period,
+        )  # fmt: skip
+        # The frontier's progress clock stands still while the robot is away on a revisit.
+        ex, choice = explore.update(
+            params.explore, s.explore, values, grid, s.pose, jnp.where(rv.active, 0.0, period), value
+        )
+        goal_rc = jnp.where(rv.active, grid.cell_of(rv.goal[:2]), choice.goal_rc)
+        p = nav.plan_from_start(params.nav, grid, weight, value, goal_rc, s.pose)
+        p = eqx.tree_at(lambda x: x.ok, p, p.ok & (choice.found | rv.active))
         # A new goal (one that moved): MPPI restarts from a zero sequence on the new plan.
-        moved = jnp.linalg.norm(ex.goal[:2] - s.explore.goal[:2]) > params.explore.blacklist_radius
+        moved = jnp.linalg.norm(goal_of(ex, rv)[0][:2] - goal_of(s.explore, s.revisit)[0][:2])
+        moved = moved > params.explore.blacklist_radius
         fresh = nav.init(params.nav, s.pose).controller
         ctrl = jax.tree.map(lambda a, b: jnp.where(moved, a, b), fresh, s.nav.controller)
-        return slam_state, grid, ex, nav.NavState(controller=ctrl, plan=p)
+        return slam_state, grid, ex, rv, nav.NavState(controller=ctrl, plan=p)
 
     def init(params: ExploreLoopParams, inputs: ExploreInputs, qpos0, key) -> ExploreLoopState:
         k_sim, key = jax.random.split(key)
@@ -226,6 +246,7 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
             pose=pose,
             grid=CostGrid(unknown, origin, jnp.asarray(g.resolution, jnp.float32), jnp.zeros(shape, jnp.float32)),
             explore=explore.init(shape),
+            revisit=revisit.init(params.slam_spec.nodes),
             nav=nav.init(params.nav, pose),
             cmd=jnp.zeros(3),
             waiting=jnp.array(False),
@@ -254,24 +275,23 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
         s = dataclasses.replace(s, body=b, slam=slam_state, pose=pose)
 
         period = params.nav.replan_ticks * tick_dt
-        slam_state, grid, ex, nav_state = jax.lax.cond(
-            inputs.replan, lambda: plan(params, s, period), lambda: (s.slam, s.grid, s.explore, s.nav)
+        slam_state, grid, ex, rv, nav_state = jax.lax.cond(
+            inputs.replan, lambda: plan(params, s, period), lambda: (s.slam, s.grid, s.explore, s.revisit, s.nav)
         )
+        goal, has_goal = goal_of(ex, rv)
         key, k_nav = jax.random.split(s.key)
-        nav_state, ctrl = nav.step(
-            params.nav, nav_state, nav.NavInputs(pose=s.pose, goal=ex.goal, grid=grid, key=k_nav)
-        )
+        nav_state, ctrl = nav.step(params.nav, nav_state, nav.NavInputs(pose=s.pose, goal=goal, grid=grid, key=k_nav))
         can_turn = critics.turn_is_clear(s.pose, grid, params.nav.controller.footprint_disks)
         idle, held_at = idle_command(
             params.nav.controller, params.spin_rate, params.hold_gain, s.pose, can_turn, s.waiting, s.held_at
         )
-        cmd = jnp.where(ex.has_goal, ctrl.cmd, idle)
+        cmd = jnp.where(has_goal, ctrl.cmd, idle)
         mode = jnp.select(
-            [~active, ~ex.has_goal & can_turn, ~ex.has_goal, ctrl.recovering, ctrl.arrived, ctrl.goal_turn],
+            [~active, ~has_goal & can_turn, ~has_goal, ctrl.recovering, ctrl.arrived, ctrl.goal_turn],
             [ENDED, SPIN, WAIT, RECOVERY, ARRIVED, GOAL_TURN],
             MPPI,
         )
-        no_goal_for = jnp.where(ex.has_goal, 0.0, s.no_goal_for + tick_dt)
+        no_goal_for = jnp.where(has_goal, 0.0, s.no_goal_for + tick_dt)
 
         t, truth = b.sim.t, body.true_pose(b.sim)
         error, _ = pose_error(s.pose, truth)
@@ -293,6 +313,7 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
             slam=slam_state,
             grid=grid,
             explore=ex,
+            revisit=rv,
             nav=nav_state,
             cmd=jnp.where(still, cmd, 0.0),
             waiting=mode == WAIT,
@@ -310,8 +331,9 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
             pose=s.pose,
             error=error,
             coverage=coverage(occupancy_values(slam_state.grid), inputs.reachable),
-            goal=ex.goal,
-            has_goal=ex.has_goal,
+            goal=goal,
+            has_goal=has_goal,
+            revisiting=rv.active,
             mode=mode.astype(jnp.int8),
             active=active,
         )

@@ -9,7 +9,8 @@ reachable cells coverage misses, as shares of the reachable cells: `unknown`, no
 but neither free nor occupied by the map format's thresholds; `occupied`; and `on_box_faces`, those of them not
 clear of the boxes); the map scores of each final map against the true map (`jaxquad.metrics.map_scores`: occupied-
 cell IoU, precision, recall within one cell); outcome counts and per-robot flags (explored, collided, lost,
-fallen); distance walked; the SLAM position error; for the traced robots, the seconds spent in each control mode
+fallen); distance walked; the revisits (`ExploreConfig.revisit_after`: begun, ended by a loop closure, and per robot
+the seconds spent on them); the SLAM position error; for the traced robots, the seconds spent in each control mode
 (`loop.MODES`: MPPI, the goal turn, standing at the goal, recovery, the look-around turn, waiting) and the mode of
 each run's last tick, counted over the traced collided runs in `collided_while`; timing (compilation apart; each
 chunk's wall time in `chunk_s`).
@@ -119,6 +120,9 @@ def summarize(result, every: float = 5.0) -> dict:
                 "slam_error_m": _stats(err),
                 "slam_nodes": int(result.nodes[i]),
                 "loop_closures": int(result.loops[i]),
+                "revisits": int(result.revisits[i]),
+                "revisits_closed": int(result.revisits_closed[i]),
+                "revisit_s": float(result.revisiting[result.active[:, i], i].sum() * tick_s),
                 "map_scores": scores[i],
             }
         )
@@ -151,6 +155,8 @@ def summarize(result, every: float = 5.0) -> dict:
             m: int(((result.outcome[:n_trace] == COLLIDED) & (last_mode == k)).sum()) for k, m in enumerate(MODES[:-1])
         },
         "distance_m": _stats(result.distance),
+        "revisits": _stats(result.revisits),
+        "revisits_closed": _stats(result.revisits_closed),
         "slam_error_m": _stats(result.error[result.active]),
         "timing": timing(result, n) | {"chunk_s": np.round(result.chunk_s, 3).tolist()},
         "per_robot": per_robot,
