@@ -44,7 +44,7 @@ def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     from jaxquad.slam import load_params
 
     keep = ("runs", "seconds", "seed", "samples", "horizon", "every", "band_height", "band_reduce")
-    keep += ("map_miss_probability", "revisit_after")
+    keep += ("map_miss_probability", "revisit_after", "footprint_padding")
     slam = load_params(args.slam_params) if args.slam_params else None  # the values: an edited file is another cell
     return {"robot": robot, "world": world, "variant": variant, "traces": args.traces, "slam_params": slam} | {
         k: getattr(args, k) for k in keep
@@ -73,8 +73,9 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
     done = _finished_row(args, robot, world, variant)
     if done is not None and done.exists():
         saved = json.loads(done.read_text())
-        # rows kept before --slam-params and --revisit-after had neither
-        if {"slam_params": None, "revisit_after": 0.0} | saved.get("settings", {}) != settings:
+        # rows kept before --slam-params, --revisit-after and --footprint-padding had none of them
+        old = {"slam_params": None, "revisit_after": 0.0, "footprint_padding": 0.1}
+        if old | saved.get("settings", {}) != settings:
             raise CheckpointError(f"{done}: a finished cell of other settings; remove it or choose another folder")
         print(f"{name}: finished earlier ({done})", file=sys.stderr, flush=True)
         return saved["row"]
@@ -94,6 +95,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         slam_params=args.slam_params,
         map_miss_probability=args.map_miss_probability,
         revisit_after=args.revisit_after,
+        footprint_padding=args.footprint_padding,
         trace_robots=args.runs if args.traces else 4,
         devices=args.devices,
     )
@@ -223,7 +225,13 @@ def plot(rows: list[dict], folder: Path) -> Path:
 def main() -> int:
     from jaxquad.cli import add_band_reduce_argument
     from jaxquad.explore.checkpoint import PAUSED_STATUS, CheckpointError, Paused
-    from jaxquad.explore.cli import add_map_miss_probability_argument, add_revisit_after_argument, check_revisit_after
+    from jaxquad.explore.cli import (
+        add_footprint_padding_argument,
+        add_map_miss_probability_argument,
+        add_revisit_after_argument,
+        check_footprint_padding,
+        check_revisit_after,
+    )
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--runs", type=int, default=4, help="robots per cell, each from its own start (default 4)")
@@ -244,6 +252,7 @@ def main() -> int:
     )
     add_map_miss_probability_argument(p)
     add_revisit_after_argument(p)
+    add_footprint_padding_argument(p)
     p.add_argument(
         "--devices", type=int, default=None, help="split each cell's robots over the first N devices (default all)"
     )
@@ -271,6 +280,7 @@ def main() -> int:
         p.error(f"--map-miss-probability must lie in (0, 0.5), got {args.map_miss_probability}")
     try:
         check_revisit_after(args.revisit_after)
+        check_footprint_padding(args.footprint_padding)
     except ValueError as e:
         p.error(str(e))
     if args.wall_budget is not None and not (args.checkpoint and args.wall_budget > 0):

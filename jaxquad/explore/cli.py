@@ -47,6 +47,28 @@ def add_revisit_after_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_footprint_padding_argument(parser: argparse.ArgumentParser) -> None:
+    """The shared `--footprint-padding` option (`ExploreConfig.footprint_padding`, whose default it shows)."""
+    from jaxquad.explore.fleet import ExploreConfig
+
+    default = ExploreConfig.footprint_padding
+    parser.add_argument(
+        "--footprint-padding",
+        type=float,
+        default=default,
+        help=f"margin added to the footprint's covering disks in the costmap, against the SLAM pose's error, m "
+        f"(default {default:g})",
+    )
+
+
+def check_footprint_padding(value: float) -> None:
+    """A one-line error for a `--footprint-padding` that is not a finite number >= 0."""
+    import math
+
+    if not (math.isfinite(value) and value >= 0):
+        raise ValueError(f"--footprint-padding must be a number >= 0, got {value}")
+
+
 def check_revisit_after(value: float) -> None:
     """A one-line error for a `--revisit-after` that is not a finite number >= 0."""
     import math
@@ -88,13 +110,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_map_miss_probability_argument(parser)
     add_revisit_after_argument(parser)
-    parser.add_argument(
-        "--footprint-padding",
-        type=float,
-        default=0.1,
-        help="margin added to the footprint's covering disks in the costmap, against the SLAM pose's error, m "
-        "(default 0.1)",
-    )
+    add_footprint_padding_argument(parser)
     parser.add_argument("--band-height", type=int, default=1, help="scan band height in px (default 1)")
     add_band_reduce_argument(parser)
     parser.add_argument(
@@ -153,8 +169,7 @@ def run(args: argparse.Namespace) -> int:
     if not 0.0 < args.map_miss_probability < 0.5:
         raise ValueError(f"--map-miss-probability must lie in (0, 0.5), got {args.map_miss_probability}")
     check_revisit_after(args.revisit_after)
-    if not (math.isfinite(args.footprint_padding) and args.footprint_padding >= 0):
-        raise ValueError(f"--footprint-padding must be a number >= 0, got {args.footprint_padding}")
+    check_footprint_padding(args.footprint_padding)
     if args.wall_budget is not None:
         if args.checkpoint is None:
             raise ValueError("--wall-budget needs --checkpoint, the file the run is saved to")
