@@ -73,7 +73,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
     done = _finished_row(args, robot, world, variant)
     if done is not None and done.exists():
         saved = json.loads(done.read_text())
-        # rows kept before --slam-params, --revisit-after and --footprint-padding had none of them
+        # rows kept before --slam-params, --revisit-after and --footprint-padding had none: the values they ran with
         old = {"slam_params": None, "revisit_after": 0.0, "footprint_padding": 0.1}
         if old | saved.get("settings", {}) != settings:
             raise CheckpointError(f"{done}: a finished cell of other settings; remove it or choose another folder")
@@ -229,8 +229,7 @@ def main() -> int:
         add_footprint_padding_argument,
         add_map_miss_probability_argument,
         add_revisit_after_argument,
-        check_footprint_padding,
-        check_revisit_after,
+        check_nonnegative,
     )
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -279,8 +278,8 @@ def main() -> int:
     if not 0.0 < args.map_miss_probability < 0.5:
         p.error(f"--map-miss-probability must lie in (0, 0.5), got {args.map_miss_probability}")
     try:
-        check_revisit_after(args.revisit_after)
-        check_footprint_padding(args.footprint_padding)
+        check_nonnegative("--revisit-after", args.revisit_after)
+        check_nonnegative("--footprint-padding", args.footprint_padding)
     except ValueError as e:
         p.error(str(e))
     if args.wall_budget is not None and not (args.checkpoint and args.wall_budget > 0):

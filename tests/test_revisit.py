@@ -1,6 +1,7 @@
 """Active loop closing (`jaxquad.nav.revisit`): the node chosen against a NumPy search over random node sets, and
 when a revisit starts and ends, on hand-built cases."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -53,10 +54,9 @@ def test_the_nearest_old_untried_node_is_chosen_as_a_numpy_search_chooses_it(see
     tried = rng.random(n) < 0.2
     pose = np.array([2.5, 2.0, 0.0], np.float32)
     value = _value(rng, pose)
-    state = revisit.init(n)
-    state = state.__class__(**{**vars(state), "tried": jnp.asarray(tried), "since": jnp.float32(40.0)})
-    out = _update(PARAMS, state, node_pose, node_t, node_mask, jnp.int32(0), jnp.float32(130.0), pose, _grid(),
-                  value, 1.0)  # fmt: skip
+    state = eqx.tree_at(lambda s: (s.tried, s.since), revisit.init(n), (jnp.asarray(tried), jnp.float32(40.0)))
+    nodes = revisit.Nodes(jnp.asarray(node_pose), jnp.asarray(node_t), jnp.asarray(node_mask))
+    out = _update(PARAMS, state, nodes, jnp.int32(0), jnp.float32(130.0), pose, _grid(), value, 1.0)
     k = _reference(node_pose, node_t, node_mask, tried, 130.0, pose, value)
     assert bool(out.active) == (k is not None)
     if k is not None:
@@ -75,10 +75,10 @@ def _one_node_case():
     return node_pose, jnp.array([0.0], jnp.float32), jnp.array([True]), pose, value
 
 
-def _step(state, pose, loops=0, t=100.0, elapsed=1.0, params=PARAMS):
+def _step(state, pose, loops=0, t=100.0, elapsed=1.0, params=PARAMS, running=True, nodes=None):
     node_pose, node_t, mask, _, value = _one_node_case()
-    return _update(params, state, node_pose, node_t, mask, jnp.int32(loops), jnp.float32(t), pose, _grid(), value,
-                   elapsed)  # fmt: skip
+    nodes = revisit.Nodes(node_pose, node_t, mask) if nodes is None else nodes
+    return _update(params, state, nodes, jnp.int32(loops), jnp.float32(t), pose, _grid(), value, elapsed, running)
 
 
 def test_a_revisit_starts_only_after_the_time_without_a_closure_and_never_with_after_inf():
@@ -126,3 +126,26 @@ def test_a_revisit_ends_after_dwelling_at_the_node_or_at_its_timeout_and_is_not_
         assert bool(s.active)
     s = _step(s, pose)  # 20 s away without getting there
     assert not bool(s.active)
+
+
+def test_nodes_added_where_a_revisit_ended_are_tried_and_an_ended_run_starts_none():
+    node_pose, node_t, mask, pose, _ = _one_node_case()
+    s = _step(
+        revisit.init(2), pose, elapsed=30.0, nodes=revisit.Nodes(*(jnp.r_[a, a] for a in (node_pose, node_t, mask)))
+    )
+    assert bool(s.active) and np.asarray(s.tried).all()  # both slots hold the node: both tried at the start
+    # Two slots: the revisited node, and one the SLAM adds 0.3 m from it while the robot waits there.
+    two = jnp.r_[node_pose, node_pose + jnp.array([[0.3, 0.0, 0.0]])]
+    s = _step(revisit.init(2), pose, elapsed=30.0, nodes=revisit.Nodes(two, jnp.zeros(2), jnp.array([True, False])))
+    assert bool(s.active) and np.asarray(s.tried).tolist() == [True, False]
+    at_node = node_pose[0] + jnp.array([0.2, 0.0, 0.0])
+    for _ in range(2):
+        s = _step(s, at_node, nodes=revisit.Nodes(two, jnp.zeros(2), jnp.array([True, True])))
+    assert not bool(s.active) and np.asarray(s.tried).tolist() == [True, True]
+
+    s = _step(revisit.init(1), pose, elapsed=30.0)
+    assert bool(s.active)
+    s = _step(s, pose, running=False)  # the run ended: the revisit with it, and no other begins
+    assert not bool(s.active)
+    s = _step(revisit.init(1), pose, elapsed=100.0, running=False)  # an untried node, the clock long past
+    assert not bool(s.active) and int(s.started) == 0

@@ -61,20 +61,12 @@ def add_footprint_padding_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def check_footprint_padding(value: float) -> None:
-    """A one-line error for a `--footprint-padding` that is not a finite number >= 0."""
+def check_nonnegative(option: str, value: float) -> None:
+    """A one-line error for an option (`--footprint-padding`, `--revisit-after`) that is not a finite number >= 0."""
     import math
 
     if not (math.isfinite(value) and value >= 0):
-        raise ValueError(f"--footprint-padding must be a number >= 0, got {value}")
-
-
-def check_revisit_after(value: float) -> None:
-    """A one-line error for a `--revisit-after` that is not a finite number >= 0."""
-    import math
-
-    if not (math.isfinite(value) and value >= 0):
-        raise ValueError(f"--revisit-after must be a number of seconds >= 0 (0: never), got {value}")
+        raise ValueError(f"{option} must be a finite number >= 0, got {value}")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -168,8 +160,8 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"{option} must be a positive number, got {value}")
     if not 0.0 < args.map_miss_probability < 0.5:
         raise ValueError(f"--map-miss-probability must lie in (0, 0.5), got {args.map_miss_probability}")
-    check_revisit_after(args.revisit_after)
-    check_footprint_padding(args.footprint_padding)
+    check_nonnegative("--revisit-after", args.revisit_after)
+    check_nonnegative("--footprint-padding", args.footprint_padding)
     if args.wall_budget is not None:
         if args.checkpoint is None:
             raise ValueError("--wall-budget needs --checkpoint, the file the run is saved to")

@@ -84,12 +84,11 @@ class ExploreConfig:
         for name in ("seconds", "spin_rate", "finish_time", "map_range"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
-        if not (self.revisit_after >= 0 and math.isfinite(self.revisit_after)):
-            raise ValueError(f"revisit_after must be >= 0 s (0: never), got {self.revisit_after}")
+        for name in ("revisit_after", "footprint_padding"):  # revisit_after 0: never
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {getattr(self, name)}")
         if not 0.0 < self.map_miss_probability < 0.5:
             raise ValueError(f"map_miss_probability must lie in (0, 0.5), got {self.map_miss_probability}")
-        if not self.footprint_padding >= 0:
-            raise ValueError(f"footprint_padding must be >= 0, got {self.footprint_padding}")
         if self.chunk_ticks % REPLAN_TICKS:
             raise ValueError(f"chunk_ticks must be a multiple of {REPLAN_TICKS}, got {self.chunk_ticks}")
         self.slam_values()  # reads and checks the SLAM file now, before any heavy work

@@ -209,14 +209,14 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
         values = occupancy_values(slam_state.grid)
         grid = nav.cost_grid(params.nav, values, jnp.array([g.origin_x, g.origin_y], jnp.float32), g.resolution)
         weight, value = explore.robot_value(params.explore, grid, s.pose)
-        nodes = slam_state.graph
+        nodes = revisit.Nodes(slam_state.graph.poses, slam_state.node_t, slam_state.graph.node_mask)
+        running = s.outcome == RUNNING
         rv = revisit.update(
-            params.revisit, s.revisit, nodes.poses, slam_state.node_t, nodes.node_mask, slam_state.loops,
-            s.body.sim.t, s.pose, grid, value, period,
-        )  # fmt: skip
-        # The frontier's progress clock stands still while the robot is away on a revisit.
+            params.revisit, s.revisit, nodes, slam_state.loops, s.body.sim.t, s.pose, grid, value, period, running
+        )
+        # The frontier's progress clock stands still over a period the robot spent on a revisit.
         ex, choice = explore.update(
-            params.explore, s.explore, values, grid, s.pose, jnp.where(rv.active, 0.0, period), value
+            params.explore, s.explore, values, grid, s.pose, jnp.where(s.revisit.active, 0.0, period), value
         )
         goal_rc = jnp.where(rv.active, grid.cell_of(rv.goal[:2]), choice.goal_rc)
         p = nav.plan_from_start(params.nav, grid, weight, value, goal_rc, s.pose)

@@ -9,10 +9,12 @@ drift it lets through grows with that time.
 
 `update` runs once per planning period. A revisit starts once `after` s have passed since the last closure
 (or the last revisit) and a stored SLAM node at least `min_age` s old, not tried before, lies on a cell the
-robot reaches within `max_path` m of path (its cost-to-go): the nearest such node becomes the goal, with its
-heading (the camera must face what it saw then), and every node within `spacing` m of it is marked tried.
-The revisit ends when a loop closes, after `dwell` s within `reach` m of the goal (the turn to its heading
-included), or after `timeout` s; then the clock starts again. `after` = inf never starts one.
+robot reaches at a path cost of at most `max_path` (the planner's cost-to-go: metres in the open, more near
+obstacles, whose cells weigh up to 4 times): the cheapest such node becomes the goal, with its heading (the camera
+must face what it saw then). It ends when a loop closes, after `dwell` s within `reach` m of the goal (where the
+navigation turns the robot to the goal's heading), or after `timeout` s; the nodes within `spacing` m of its goal,
+where it began and where it ended (the nodes added there meanwhile), are then tried, and the clock starts
+again. `after` = inf never starts one; nor does a robot whose run has ended.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from jaxquad.kernels.costmap import CostGrid
 class RevisitParams(eqx.Module):
     after: Float[Array, ""]  # s without a loop closure (or revisit) before one starts; inf: never
     min_age: Float[Array, ""]  # s: a node younger than this is no revisit (its drift is the robot's own)
-    max_path: Float[Array, ""]  # m of path to the node at most
+    max_path: Float[Array, ""]  # path cost to the node at most (m in the open; cells near obstacles weigh more)
     spacing: Float[Array, ""]  # m: nodes this close to a revisited one are not tried again
     reach: Float[Array, ""]  # m from the goal that counts as there
     dwell: Float[Array, ""]  # s there (turning to the node's heading) before the revisit ends
@@ -67,49 +69,73 @@ def init(n_nodes: int) -> RevisitState:
     )
 
 
+class Nodes(eqx.Module):
+    """The SLAM's node slots (`jaxquad.slam.SlamState`: graph poses, stamps, which are stored)."""
+
+    pose: Float[Array, "n 3"]  # base pose in the map frame: x, y (m), yaw (rad)
+    t: Float[Array, " n"]  # s
+    mask: Bool[Array, " n"]
+
+
+def _near(nodes: Nodes, xy: Float[Array, " 2"], radius: Float[Array, ""]) -> Bool[Array, " n"]:
+    return nodes.mask & (jnp.linalg.norm(nodes.pose[:, :2] - xy, axis=1) <= radius)
+
+
+def _cheapest(
+    params: RevisitParams,
+    tried: Bool[Array, " n"],
+    nodes: Nodes,
+    t: Float[Array, ""],
+    pose: Float[Array, " 3"],
+    grid: CostGrid,
+    value: Float[Array, "H W"],
+) -> tuple[Bool[Array, ""], Int[Array, ""]]:
+    """(whether a node qualifies, the cheapest one's slot): old enough, untried, within `max_path`, not here."""
+    h, w = value.shape
+    rc = grid.cell_of(nodes.pose[:, :2])
+    inside = (rc[:, 0] >= 0) & (rc[:, 0] < h) & (rc[:, 1] >= 0) & (rc[:, 1] < w)
+    path = jnp.where(inside, value[jnp.clip(rc[:, 0], 0, h - 1), jnp.clip(rc[:, 1], 0, w - 1)], jnp.inf)
+    path = path * grid.resolution
+    here = _near(nodes, pose[:2], params.reach)
+    ok = nodes.mask & (t - nodes.t >= params.min_age) & ~tried & (path <= params.max_path) & ~here
+    return jnp.any(ok), jnp.argmin(jnp.where(ok, path, jnp.inf))
+
+
 def update(
     params: RevisitParams,
     state: RevisitState,
-    node_pose: Float[Array, "n 3"],
-    node_t: Float[Array, " n"],
-    node_mask: Bool[Array, " n"],
+    nodes: Nodes,
     loops: Int[Array, ""],
     t: Float[Array, ""],
     pose: Float[Array, " 3"],
     grid: CostGrid,
     value: Float[Array, "H W"],
     elapsed: float | Float[Array, ""],
+    running: Bool[Array, ""] | bool = True,
 ) -> RevisitState:
     """One planning period, `elapsed` s after the last: end the current revisit or start one (see the module doc).
-    `node_*` are the SLAM's node slots (base poses in the map frame, stamps in s, which are stored), `loops` its
-    count of accepted closures, `t` the time now (s), `value` the robot's cost-to-go on `grid` (cells x step
-    weight; inf where unreachable)."""
+    `loops` is the SLAM's count of accepted closures, `t` the time now (s), `value` the robot's cost-to-go on
+    `grid` (cells x step weight; inf where unreachable); `running`: the robot's run has not ended."""
+    running = jnp.asarray(running, bool)
     closed = loops > state.loops
     there = jnp.linalg.norm(pose[:2] - state.goal[:2]) < params.reach
     near_for = jnp.where(state.active & there, state.near_for + elapsed, 0.0)
     spent = jnp.where(state.active, state.elapsed + elapsed, 0.0)
-    ended = state.active & (closed | (near_for >= params.dwell) | (spent >= params.timeout))
+    ended = state.active & (closed | (near_for >= params.dwell) | (spent >= params.timeout) | ~running)
     since = jnp.where(closed | ended, 0.0, state.since + elapsed)
     going = state.active & ~ended
+    tried = state.tried | (ended & _near(nodes, state.goal[:2], params.spacing))
 
-    h, w = value.shape
-    rc = grid.cell_of(node_pose[:, :2])
-    inside = (rc[:, 0] >= 0) & (rc[:, 0] < h) & (rc[:, 1] >= 0) & (rc[:, 1] < w)
-    path = jnp.where(inside, value[jnp.clip(rc[:, 0], 0, h - 1), jnp.clip(rc[:, 1], 0, w - 1)], jnp.inf)
-    path = path * grid.resolution
-    away = jnp.linalg.norm(node_pose[:, :2] - pose[:2], axis=1) >= params.reach
-    candidate = node_mask & (t - node_t >= params.min_age) & ~state.tried & (path <= params.max_path) & away
-    start = ~going & (since >= params.after) & jnp.any(candidate)
-    k = jnp.argmin(jnp.where(candidate, path, jnp.inf))
-    near_k = node_mask & (jnp.linalg.norm(node_pose[:, :2] - node_pose[k, :2], axis=1) <= params.spacing)
+    found, k = _cheapest(params, tried, nodes, t, pose, grid, value)
+    start = running & ~going & (since >= params.after) & found
     return RevisitState(
         active=going | start,
-        goal=jnp.where(start, node_pose[k], state.goal),
+        goal=jnp.where(start, nodes.pose[k], state.goal),
         since=since,
         loops=loops.astype(state.loops.dtype),
         near_for=jnp.where(start, 0.0, near_for),
         elapsed=jnp.where(start, 0.0, spent),
-        tried=state.tried | (start & near_k),
+        tried=tried | (start & _near(nodes, nodes.pose[k, :2], params.spacing)),
         started=state.started + start.astype(state.started.dtype),
         closed=state.closed + (state.active & closed).astype(state.closed.dtype),
     )
