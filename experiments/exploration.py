@@ -44,7 +44,7 @@ def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     from jaxquad.slam import load_params
 
     keep = ("runs", "seconds", "seed", "samples", "horizon", "every", "band_height", "band_reduce")
-    keep += ("map_miss_probability", "revisit_after", "footprint_padding")
+    keep += ("map_miss_probability", "revisit_after", "footprint_padding", "low_obstacles")
     slam = load_params(args.slam_params) if args.slam_params else None  # the values: an edited file is another cell
     return {"robot": robot, "world": world, "variant": variant, "traces": args.traces, "slam_params": slam} | {
         k: getattr(args, k) for k in keep
@@ -73,8 +73,8 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
     done = _finished_row(args, robot, world, variant)
     if done is not None and done.exists():
         saved = json.loads(done.read_text())
-        # rows kept before --slam-params, --revisit-after and --footprint-padding had none: the values they ran with
-        old = {"slam_params": None, "revisit_after": 0.0, "footprint_padding": 0.1}
+        # rows kept before --slam-params and the options below it had none: the values they ran with
+        old = {"slam_params": None, "revisit_after": 0.0, "footprint_padding": 0.1, "low_obstacles": False}
         if old | saved.get("settings", {}) != settings:
             raise CheckpointError(f"{done}: a finished cell of other settings; remove it or choose another folder")
         print(f"{name}: finished earlier ({done})", file=sys.stderr, flush=True)
@@ -96,6 +96,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         map_miss_probability=args.map_miss_probability,
         revisit_after=args.revisit_after,
         footprint_padding=args.footprint_padding,
+        low_obstacles=args.low_obstacles,
         trace_robots=args.runs if args.traces else 4,
         devices=args.devices,
     )
@@ -227,6 +228,7 @@ def main() -> int:
     from jaxquad.explore.checkpoint import PAUSED_STATUS, CheckpointError, Paused
     from jaxquad.explore.cli import (
         add_footprint_padding_argument,
+        add_low_obstacles_argument,
         add_map_miss_probability_argument,
         add_revisit_after_argument,
         check_nonnegative,
@@ -252,6 +254,7 @@ def main() -> int:
     add_map_miss_probability_argument(p)
     add_revisit_after_argument(p)
     add_footprint_padding_argument(p)
+    add_low_obstacles_argument(p)
     p.add_argument(
         "--devices", type=int, default=None, help="split each cell's robots over the first N devices (default all)"
     )

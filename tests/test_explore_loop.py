@@ -316,3 +316,39 @@ def test_revisits_drive_back_to_where_the_robot_was(run, monkeypatch):
         assert gap[1] < gap[0] or gap[1] < 0.5
     per_robot = summarize(again, 6.0)["per_robot"][0]
     assert per_robot["revisit_s"] == pytest.approx(on.sum() * 0.096, rel=1e-4)
+
+
+def _rectangle_distance(center, half, yaw, xy):
+    """Signed distance (m) from points (P, 2) to a rotated rectangle, an independent NumPy form."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    d = xy - center
+    q = np.abs(np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], 1)) - half
+    return np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(1), 0)
+
+
+@pytest.mark.slow
+def test_low_obstacles_mark_a_box_lower_than_the_camera():
+    """A Go2 started 1.8 m from the warehouse's lowest box (a pallet under the camera's scan plane), facing it, for
+    14.4 s with the low-obstacle layer on: the SLAM map holds none of the pallet (its scans pass over it), the layer
+    marks its face, and every cell the layer marks lies on or beside a true box."""
+    from jaxquad.explore import ExploreConfig, explore
+    from jaxquad.sim.worlds import box_signed_distance, make_world
+
+    world = make_world("warehouse", 0)
+    k = int(np.argmin(world.half[:, 2]))
+    center, half, yaw = world.center[k, :2], world.half[k, :2], world.yaw[k]
+    assert 2 * world.half[k, 2] < 0.3  # under the Go2's camera, about 0.32 m above the floor
+    for a in np.linspace(0, 2 * np.pi, 32, endpoint=False):  # a clear start 1.8 m from its centre, facing it
+        xy = center + 1.8 * np.array([np.cos(a), np.sin(a)])
+        if box_signed_distance(world, xy[None])[0] > 0.75:
+            break
+    start = np.array([[xy[0], xy[1], a + np.pi]])
+    cfg = ExploreConfig(world="warehouse", n_robots=1, seconds=14.4, samples=64, horizon=20, trace_robots=1,
+                        low_obstacles=True)  # fmt: skip
+    result = explore(cfg, starts=start)
+    cells = result.truth.cell_centers().reshape(-1, 2)
+    on_pallet = _rectangle_distance(center, half, yaw, cells) <= 0.05
+    assert not (result.maps[0].reshape(-1)[on_pallet] > 65).any()
+    marked = result.low[0].reshape(-1)
+    assert (marked & (_rectangle_distance(center, half, yaw, cells) <= 0.15)).sum() >= 5
+    assert np.all(box_signed_distance(world, cells[marked]) <= 0.25)

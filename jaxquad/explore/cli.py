@@ -61,6 +61,16 @@ def add_footprint_padding_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_low_obstacles_argument(parser: argparse.ArgumentParser) -> None:
+    """The shared `--low-obstacles` switch (`ExploreConfig.low_obstacles`)."""
+    parser.add_argument(
+        "--low-obstacles",
+        action="store_true",
+        help="keep the robot off obstacles lower than the camera's scan plane, seen in the depth image's points "
+        "below it (default: off, the costmap is the SLAM map's alone)",
+    )
+
+
 def check_nonnegative(option: str, value: float) -> None:
     """A one-line error for an option (`--footprint-padding`, `--revisit-after`) that is not a finite number >= 0."""
     import math
@@ -102,6 +112,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_map_miss_probability_argument(parser)
     add_revisit_after_argument(parser)
+    add_low_obstacles_argument(parser)
     add_footprint_padding_argument(parser)
     parser.add_argument("--band-height", type=int, default=1, help="scan band height in px (default 1)")
     add_band_reduce_argument(parser)
@@ -185,6 +196,7 @@ def run(args: argparse.Namespace) -> int:
         map_range=args.map_range,
         map_miss_probability=args.map_miss_probability,
         revisit_after=args.revisit_after,
+        low_obstacles=args.low_obstacles,
         footprint_padding=args.footprint_padding,
         band_height=args.band_height,
         band_reduce=args.band_reduce,

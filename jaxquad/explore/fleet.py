@@ -29,6 +29,7 @@ import numpy as np
 from jaxquad import parallel, slam
 from jaxquad.explore import checkpoint as ckpt
 from jaxquad.explore import loop as xl
+from jaxquad.kernels.low_obstacles import LowObstacleParams
 from jaxquad.kernels.occupancy import occupancy_values
 from jaxquad.metrics import narrow_gaps
 from jaxquad.nav import explore as nav_explore
@@ -65,6 +66,9 @@ class ExploreConfig:
     footprint_padding: float = 0.1
     spin_rate: float = 0.6  # rad/s, turning in place without a frontier goal
     finish_time: float = 12.0  # s without a frontier before exploration counts as finished (one turn and more)
+    # Obstacles under the camera's scan plane (a pallet lower than the camera), marked from the depth image's points
+    # below it in the costmap (`kernels.low_obstacles`); off: the costmap is the SLAM map's alone.
+    low_obstacles: bool = False
     # s without an accepted loop closure before the robot drives back to a place mapped a minute or more ago to close
     # one (active loop closing, `jaxquad.nav.revisit`); 0: never.
     revisit_after: float = 0.0
@@ -102,6 +106,7 @@ class ExploreConfig:
             band_height=self.band_height,
             band_reduce=self.band_reduce,
             contacts=self.contacts,
+            low_obstacles=self.low_obstacles,
         )
 
     def slam_values(self) -> dict:
@@ -128,6 +133,7 @@ class ExploreResult:
     # (coverage's denominator)
     clear: np.ndarray  # (H, W) bool: the reachable cells whose whole square is off every box (coverage_clear's)
     maps: np.ndarray  # (N, H, W) int8: each robot's final SLAM map (-1 unknown, 0..100)
+    low: np.ndarray  # (N, H, W) bool: the obstacles under the scan plane each robot marked ((N, 0, 0) when off)
     starts: np.ndarray  # (N, 3) x y yaw
     outcome: np.ndarray  # (N,) loop.OUTCOMES codes
     end_t: np.ndarray  # (N,) s when the run ended (NaN: running at the end)
@@ -183,6 +189,8 @@ def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_d
         # free readings of a cell in this SLAM's log-odds, so the edge of what was seen would never be a frontier).
         explore=nav_explore.ExploreParams.default(free_thresh=50.0),
         revisit=revisit.RevisitParams.default(after=cfg.revisit_after or np.inf),
+        # The camera's height above the floor when the robot stands at its home pose.
+        low=LowObstacleParams.default(float(fleet.robot.qpos_home[2] + T_bc[2, 3])),
         slam_spec=spec,
         slam=slam_params,
         body=body,
@@ -334,6 +342,7 @@ def explore(
         reachable=reachable,
         clear=clear,
         maps=maps,
+        low=np.asarray(states.low)[:n],
         starts=starts,
         outcome=np.asarray(states.outcome)[:n],
         end_t=np.asarray(states.end_t)[:n],

@@ -39,12 +39,15 @@ from typing import NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from jaxquad import slam
 from jaxquad.estimate.laser import planar_twist
 from jaxquad.kernels import critics, mppi
 from jaxquad.kernels.costmap import CostGrid
+from jaxquad.kernels.lie import roll_pitch
+from jaxquad.kernels.low_obstacles import LowObstacleParams, low_obstacle_scan
 from jaxquad.kernels.occupancy import occupancy_values
 from jaxquad.kernels.scan import BAND_REDUCTIONS
 from jaxquad.nav import explore, revisit
@@ -60,6 +63,7 @@ RUNNING, EXPLORED, COLLIDED, LOST, FALLEN = range(len(OUTCOMES))
 MODES = ("mppi", "goal_turn", "arrived", "recovery", "spin", "wait", "ended")
 MPPI, GOAL_TURN, ARRIVED, RECOVERY, SPIN, WAIT, ENDED = range(len(MODES))
 HOLD_RADIUS = 0.15  # m: a waiting robot farther than this from its hold point holds where it is instead
+LOW_MARGIN = 0.2  # m: a low obstacle counts where it is this much nearer than the 2D scan's return
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,6 +77,7 @@ class ExploreLoopConfig:
     band_height: int = 1  # scan band rows
     band_reduce: str = "median"  # each ray's range from its band: "median" or the paper's "min" (kernels.scan)
     contacts: str = "truth"  # the estimator's contact source
+    low_obstacles: bool = False  # mark obstacles under the scan plane from the depth image (kernels.low_obstacles)
 
     def __post_init__(self):
         if self.lo_constraints not in slam.LO_CONSTRAINTS:
@@ -90,6 +95,7 @@ class ExploreLoopParams(eqx.Module):
     nav: nav.NavParams
     explore: explore.ExploreParams
     revisit: revisit.RevisitParams
+    low: LowObstacleParams  # read with ExploreLoopConfig.low_obstacles
     slam_spec: slam.SlamSpec  # static: capacities, search sizes, the map's cells
     slam: slam.SlamParams
     body: BodyParams
@@ -113,6 +119,7 @@ class ExploreLoopState(eqx.Module):
     slam: slam.SlamState
     pose: Float[Array, " 3"]  # the SLAM's pose of the base, map (= world) frame
     grid: CostGrid  # costmap of the SLAM map at the last planning period
+    low: Bool[Array, "H W"]  # cells of obstacles seen under the scan plane, on the SLAM map's cells ((0, 0) when off)
     explore: explore.ExploreState
     revisit: revisit.RevisitState
     nav: nav.NavState
@@ -183,10 +190,34 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
     """The loop's pure functions for `fleet` (a `jaxquad.sim.Fleet` with depth; static parts closed over)."""
     body = make_body(fleet, config.odometry, config.scans, config.band_height, config.contacts, config.band_reduce)
     tick_dt = config.frames_per_tick * float(fleet.frame_dt)
+    cam_xy = jnp.asarray(np.asarray(fleet.T_base_camera)[:2, 3], jnp.float32)  # the camera in the base frame, m
 
-    def slam_step(params: ExploreLoopParams, s: slam.SlamState, b: Body, depth, odom, active=True):
+    def mark_low(params: ExploreLoopParams, low, b: Body, depth, scan, pose, active):
+        """`low` with this frame's obstacles under the scan plane marked, placed by the SLAM pose: those nearer than
+        what the frame's 2D `scan` sees along their bearings by `LOW_MARGIN` (what the scan sees, the map holds)
+        and never cleared (a cell needs `min_points` points, so few are false)."""
+        roll, pitch = roll_pitch(b.est.pose.q_world_base)
+        seen = low_obstacle_scan(depth, params.body.intrinsics, roll, pitch, params.low)
+        n = seen.bearings.shape[0]
+        step = seen.bearings[1] - seen.bearings[0]
+        k = jnp.floor((scan.bearings - seen.bearings[0]) / step + 0.5).astype(jnp.int32)  # the nearest bin centre
+        k = jnp.where((k >= 0) & (k < n), k, n)  # beams outside every bin go to a slot that is dropped
+        wall = jax.ops.segment_min(jnp.where(jnp.isfinite(scan.ranges), scan.ranges, jnp.inf), k, num_segments=n + 1)
+        wall = wall[:n]
+        nearer = seen.ranges < jnp.where(jnp.isfinite(wall), wall, jnp.inf) - LOW_MARGIN
+        c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
+        cam = pose[:2] + jnp.array([c * cam_xy[0] - s * cam_xy[1], s * cam_xy[0] + c * cam_xy[1]])
+        hit = jnp.isfinite(seen.ranges) & nearer & active
+        ray = pose[2] + seen.bearings
+        xy = cam + jnp.where(hit, seen.ranges, 0.0)[:, None] * jnp.stack([jnp.cos(ray), jnp.sin(ray)], axis=-1)
+        g = params.slam_spec.grid
+        col = jnp.floor((xy[:, 0] - g.origin_x) / g.resolution).astype(jnp.int32)
+        row = jnp.floor((xy[:, 1] - g.origin_y) / g.resolution).astype(jnp.int32)
+        inside = hit & (row >= 0) & (row < g.rows) & (col >= 0) & (col < g.cols)
+        return low.at[jnp.where(inside, row, g.rows), col].set(True, mode="drop")
+
+    def slam_step(params: ExploreLoopParams, s: slam.SlamState, b: Body, scan, odom, active=True):
         """One SLAM step on the frame's scan; an inactive robot's scan has no stamp and adds nothing."""
-        scan = body.scan(params.body, b.est, depth)
         q = b.est.pose.q_world_base
         twist, cov = planar_twist(q, b.v_base, b.omega_base, b.cov_v_base, params.yaw_rate_std)
         inputs = slam.SlamInputs(
@@ -207,7 +238,9 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
         g = params.slam_spec.grid
         slam_state = slam.refresh_map(params.slam_spec, params.slam, s.slam)
         values = occupancy_values(slam_state.grid)
-        grid = nav.cost_grid(params.nav, values, jnp.array([g.origin_x, g.origin_y], jnp.float32), g.resolution)
+        # The frontiers read the SLAM map; the costmap also holds the obstacles under the scan plane.
+        blocked = jnp.where(s.low, jnp.asarray(100, values.dtype), values) if config.low_obstacles else values
+        grid = nav.cost_grid(params.nav, blocked, jnp.array([g.origin_x, g.origin_y], jnp.float32), g.resolution)
         weight, value = explore.robot_value(params.explore, grid, s.pose)
         nodes = revisit.Nodes(slam_state.graph.poses, slam_state.node_t, slam_state.graph.node_mask)
         running = s.outcome == RUNNING
@@ -245,6 +278,7 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
             slam=slam_state,
             pose=pose,
             grid=CostGrid(unknown, origin, jnp.asarray(g.resolution, jnp.float32), jnp.zeros(shape, jnp.float32)),
+            low=jnp.zeros(shape if config.low_obstacles else (0, 0), bool),
             explore=explore.init(shape),
             revisit=revisit.init(params.slam_spec.nodes),
             nav=nav.init(params.nav, pose),
@@ -270,9 +304,11 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
 
         b, (depth, odom) = jax.lax.scan(frame, s.body, None, length=config.frames_per_tick)
         # A finished run keeps its map: the SLAM sees nothing more.
-        slam_state, out = slam_step(params, s.slam, b, depth[-1], odom[-1], active)
+        scan = body.scan(params.body, b.est, depth[-1])
+        slam_state, out = slam_step(params, s.slam, b, scan, odom[-1], active)
         pose = jnp.where(active, out.pose, s.pose)
-        s = dataclasses.replace(s, body=b, slam=slam_state, pose=pose)
+        low = mark_low(params, s.low, b, depth[-1], scan, pose, active) if config.low_obstacles else s.low
+        s = dataclasses.replace(s, body=b, slam=slam_state, pose=pose, low=low)
 
         period = params.nav.replan_ticks * tick_dt
         slam_state, grid, ex, rv, nav_state = jax.lax.cond(

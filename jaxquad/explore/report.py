@@ -183,6 +183,10 @@ def plot_maps(result, path, max_robots: int = 4) -> None:
         grid = result.maps[i]
         ax.imshow(np.where(grid < 0, 0.8, 1.0 - np.clip(grid, 0, 100) / 100.0), cmap="gray", vmin=0, vmax=1,
                   origin="lower", extent=extent)  # fmt: skip
+        if result.low[i].size:  # the obstacles marked under the scan plane (`ExploreConfig.low_obstacles`)
+            low_rc = np.argwhere(result.low[i])
+            ax.plot(x0 + (low_rc[:, 1] + 0.5) * occ.resolution, y0 + (low_rc[:, 0] + 0.5) * occ.resolution, "s",
+                    color="tab:red", ms=1.5, label="low obstacles")  # fmt: skip
         run = result.active[:, i]
         ax.plot(*result.true_pose[run, i, :2].T, "-", color="tab:blue", lw=1.0, label="true path")
         ax.plot(*result.pose[run, i, :2].T, ":", color="tab:orange", lw=1.0, label="SLAM pose")
