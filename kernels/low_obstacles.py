@@ -17,8 +17,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from jaxquad.kernels.lie import R_level_base
-from jaxquad.kernels.scan import Intrinsics, Scan, _unpack
+from jaxquad.kernels.scan import Intrinsics, Scan, _unpack, levelled_points
 
 
 class LowObstacleParams(eqx.Module):
@@ -59,13 +58,11 @@ def low_obstacle_scan(
     depth = jnp.asarray(depth, jnp.float32)
     if depth.ndim != 2 or min(n_bins, n_ranges) < 1:
         raise ValueError(f"depth must be (H, W) and n_bins, n_ranges >= 1, got {depth.shape}, {n_bins}, {n_ranges}")
-    fx, fy, cx, cy = _unpack(intrinsics)
+    fx, _, cx, _ = _unpack(intrinsics)
     height, width = depth.shape
     v, u = jnp.meshgrid(jnp.arange(height, dtype=jnp.float32), jnp.arange(width, dtype=jnp.float32), indexing="ij")
     good = jnp.isfinite(depth) & (depth > 0)
-    z = jnp.where(good, depth, 0.0)
-    p_base = jnp.stack([z, -(u - cx) * z / fx, -(v - cy) * z / fy], axis=-1)  # x forward, y left, z up
-    p_level = p_base @ R_level_base(roll, pitch).T
+    p_level = levelled_points(jnp.where(good, depth, 0.0), u, v, intrinsics, roll, pitch)
     above_floor = params.camera_height + p_level[..., 2]
     r = jnp.hypot(p_level[..., 0], p_level[..., 1])
     lo, hi = jnp.arctan2(-(width - 1 - cx), fx), jnp.arctan2(cx, fx)

@@ -176,6 +176,21 @@ def baseline_scan(
     return _column_scan(z, good, u, fx, cx, range_min, range_max, band_reduce)
 
 
+def levelled_points(
+    z: Float[Array, "..."],
+    u: Float[Array, "..."],
+    v: Float[Array, "..."],
+    intrinsics: Intrinsics,
+    roll: Float[ArrayLike, ""],
+    pitch: Float[ArrayLike, ""],
+) -> Float[Array, "... 3"]:
+    """Pixels (u, v) of z-depth z (arrays that broadcast together) back-projected and rotated by the roll and pitch
+    into the levelled frame: x forward, y left, z up, the base's heading, origin at the camera centre."""
+    fx, fy, cx, cy = _unpack(intrinsics)
+    p_base = jnp.stack([z, -(u - cx) * z / fx, -(v - cy) * z / fy], axis=-1)  # the optical axes as the base's
+    return p_base @ R_level_base(roll, pitch).T
+
+
 def level_scan(
     depth: Float[ArrayLike, "H W"],
     intrinsics: Intrinsics,
@@ -211,9 +226,7 @@ def level_scan(
     rows = jnp.round(horizon)[None, :] + offsets[:, None]  # (h, W)
 
     z, good = _band_depth(depth, rows)
-    p_cam = jnp.stack([(u - cx)[None, :] * z / fx, (rows - cy) * z / fy, z], axis=-1)
-    p_base = jnp.stack([p_cam[..., 2], -p_cam[..., 0], -p_cam[..., 1]], axis=-1)
-    p_level = p_base @ R_level_base(roll, pitch).T
+    p_level = levelled_points(z, u[None, :], rows, intrinsics, roll, pitch)
     r = jnp.hypot(p_level[..., 0], p_level[..., 1])
     bearing = jnp.arctan2(p_level[..., 1], p_level[..., 0])
 
