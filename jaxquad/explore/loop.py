@@ -13,7 +13,9 @@ becomes a costmap, `jaxquad.nav.explore.update` picks the nearest reachable
 frontier (progress check and blacklist included) and the plan to it is read off the robot's own
 cost-to-go (`nav.plan_from_start`). Between plans MPPI follows it on that costmap. With active loop closing
 (`jaxquad.nav.revisit`, off unless its `after` is finite) the goal is for a while an old SLAM node's pose
-instead, when the SLAM has gone that long without a loop closure; the frontier's progress clock waits.
+instead, when the SLAM has gone that long without a loop closure; the frontier's progress clock waits. With
+`ExploreLoopConfig.low_obstacles` the costmap also holds the obstacles under the scan plane that the depth image
+shows (`kernels.low_obstacles`: a pallet lower than the camera is in no scan, so in no map).
 Without a frontier goal the robot turns in place (`spin_rate`) to look around: at the start, before its map has free
 cells, and when exploration seems done; where the turn would bring its footprint onto a known obstacle of
 the costmap (`kernels.critics.turn_is_clear`) it waits instead, holding the SLAM pose where the wait began
@@ -207,7 +209,7 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
         nearer = seen.ranges < jnp.where(jnp.isfinite(wall), wall, jnp.inf) - LOW_MARGIN
         c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
         cam = pose[:2] + jnp.array([c * cam_xy[0] - s * cam_xy[1], s * cam_xy[0] + c * cam_xy[1]])
-        hit = jnp.isfinite(seen.ranges) & nearer & active
+        hit = jnp.isfinite(seen.ranges) & nearer & active & jnp.all(jnp.isfinite(pose))
         ray = pose[2] + seen.bearings
         xy = cam + jnp.where(hit, seen.ranges, 0.0)[:, None] * jnp.stack([jnp.cos(ray), jnp.sin(ray)], axis=-1)
         g = params.slam_spec.grid
