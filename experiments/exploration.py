@@ -226,13 +226,7 @@ def plot(rows: list[dict], folder: Path) -> Path:
 def main() -> int:
     from jaxquad.cli import add_band_reduce_argument
     from jaxquad.explore.checkpoint import PAUSED_STATUS, CheckpointError, Paused
-    from jaxquad.explore.cli import (
-        add_footprint_padding_argument,
-        add_low_obstacles_argument,
-        add_map_miss_probability_argument,
-        add_revisit_after_argument,
-        check_nonnegative,
-    )
+    from jaxquad.explore.cli import add_loop_arguments, check_loop_arguments
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--runs", type=int, default=4, help="robots per cell, each from its own start (default 4)")
@@ -251,10 +245,7 @@ def main() -> int:
     p.add_argument(
         "--slam-params", default=None, help="SLAM parameter file overriding jaxquad/slam/slam.yaml (default: none)"
     )
-    add_map_miss_probability_argument(p)
-    add_revisit_after_argument(p)
-    add_footprint_padding_argument(p)
-    add_low_obstacles_argument(p)
+    add_loop_arguments(p)
     p.add_argument(
         "--devices", type=int, default=None, help="split each cell's robots over the first N devices (default all)"
     )
@@ -278,11 +269,8 @@ def main() -> int:
         p.error("--runs and --band-height must be >= 1 and --seconds, --every positive")
     if not args.trace_every >= 0:
         p.error(f"--trace-every must be >= 0 s, got {args.trace_every}")
-    if not 0.0 < args.map_miss_probability < 0.5:
-        p.error(f"--map-miss-probability must lie in (0, 0.5), got {args.map_miss_probability}")
     try:
-        check_nonnegative("--revisit-after", args.revisit_after)
-        check_nonnegative("--footprint-padding", args.footprint_padding)
+        check_loop_arguments(args)
     except ValueError as e:
         p.error(str(e))
     if args.wall_budget is not None and not (args.checkpoint and args.wall_budget > 0):

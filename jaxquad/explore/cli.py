@@ -20,63 +20,50 @@ from jaxquad.explore.checkpoint import PAUSED_STATUS
 from jaxquad.explore.report import SUMMARY_KIND
 
 
-def add_map_miss_probability_argument(parser: argparse.ArgumentParser) -> None:
-    """The shared `--map-miss-probability` option (`ExploreConfig.map_miss_probability`, whose default it shows)."""
+def add_loop_arguments(parser: argparse.ArgumentParser) -> None:
+    """The loop's options that `jaxquad explore` and `experiments/exploration.py` share (`ExploreConfig`'s fields,
+    whose defaults they show); `check_loop_arguments` checks them."""
     from jaxquad.explore.fleet import ExploreConfig
 
-    default = ExploreConfig.map_miss_probability
+    c = ExploreConfig
     parser.add_argument(
         "--map-miss-probability",
         type=float,
-        default=default,
-        help=f"the map's occupancy of a cell a ray crosses, in place of the SLAM file's (default {default})",
+        default=c.map_miss_probability,
+        help="the map's occupancy of a cell a ray crosses, in place of the SLAM file's "
+        f"(default {c.map_miss_probability})",
     )
-
-
-def add_revisit_after_argument(parser: argparse.ArgumentParser) -> None:
-    """The shared `--revisit-after` option (`ExploreConfig.revisit_after`, whose default it shows)."""
-    from jaxquad.explore.fleet import ExploreConfig
-
-    default = ExploreConfig.revisit_after
     parser.add_argument(
         "--revisit-after",
         type=float,
-        default=default,
+        default=c.revisit_after,
         help="s without a loop closure before the robot goes back to a place it mapped a minute or more ago to "
-        f"close one (active loop closing); 0: never (default {default:g})",
+        f"close one (active loop closing); 0: never (default {c.revisit_after:g})",
     )
-
-
-def add_footprint_padding_argument(parser: argparse.ArgumentParser) -> None:
-    """The shared `--footprint-padding` option (`ExploreConfig.footprint_padding`, whose default it shows)."""
-    from jaxquad.explore.fleet import ExploreConfig
-
-    default = ExploreConfig.footprint_padding
-    parser.add_argument(
-        "--footprint-padding",
-        type=float,
-        default=default,
-        help=f"margin added to the footprint's covering disks in the costmap, against the SLAM pose's error, m "
-        f"(default {default:g})",
-    )
-
-
-def add_low_obstacles_argument(parser: argparse.ArgumentParser) -> None:
-    """The shared `--low-obstacles` switch (`ExploreConfig.low_obstacles`)."""
     parser.add_argument(
         "--low-obstacles",
         action="store_true",
         help="keep the robot off obstacles lower than the camera's scan plane, seen in the depth image's points "
         "below it (default: off, the costmap is the SLAM map's alone)",
     )
+    parser.add_argument(
+        "--footprint-padding",
+        type=float,
+        default=c.footprint_padding,
+        help=f"margin added to the footprint's covering disks in the costmap, against the SLAM pose's error, m "
+        f"(default {c.footprint_padding:g})",
+    )
 
 
-def check_nonnegative(option: str, value: float) -> None:
-    """A one-line error for an option (`--footprint-padding`, `--revisit-after`) that is not a finite number >= 0."""
+def check_loop_arguments(args: argparse.Namespace) -> None:
+    """A one-line ValueError for a value of `add_loop_arguments`' options out of its range."""
     import math
 
-    if not (math.isfinite(value) and value >= 0):
-        raise ValueError(f"{option} must be a finite number >= 0, got {value}")
+    if not 0.0 < args.map_miss_probability < 0.5:
+        raise ValueError(f"--map-miss-probability must lie in (0, 0.5), got {args.map_miss_probability}")
+    for option, value in (("--revisit-after", args.revisit_after), ("--footprint-padding", args.footprint_padding)):
+        if not (math.isfinite(value) and value >= 0):
+            raise ValueError(f"{option} must be a finite number >= 0, got {value}")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -110,10 +97,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--map-range", type=float, default=4.0, help="readings beyond this are no-returns for the map, m (default 4)"
     )
-    add_map_miss_probability_argument(parser)
-    add_revisit_after_argument(parser)
-    add_low_obstacles_argument(parser)
-    add_footprint_padding_argument(parser)
+    add_loop_arguments(parser)
     parser.add_argument("--band-height", type=int, default=1, help="scan band height in px (default 1)")
     add_band_reduce_argument(parser)
     parser.add_argument(
@@ -169,10 +153,7 @@ def run(args: argparse.Namespace) -> int:
     for option, value in (("--seconds", args.seconds), ("--every", args.every), ("--map-range", args.map_range)):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"{option} must be a positive number, got {value}")
-    if not 0.0 < args.map_miss_probability < 0.5:
-        raise ValueError(f"--map-miss-probability must lie in (0, 0.5), got {args.map_miss_probability}")
-    check_nonnegative("--revisit-after", args.revisit_after)
-    check_nonnegative("--footprint-padding", args.footprint_padding)
+    check_loop_arguments(args)
     if args.wall_budget is not None:
         if args.checkpoint is None:
             raise ValueError("--wall-budget needs --checkpoint, the file the run is saved to")
