@@ -123,7 +123,10 @@ class CostGrid(eqx.Module):
         """World x, y (m) of cell centres."""
         return self.origin + (rc[..., ::-1].astype(jnp.float32) + 0.5) * self.resolution
 
-    def _lookup(self, layer: Float[Array, "H W"], xy: Float[Array, "*S 2"], outside: float) -> Float[Array, "*S"]:
+    def lookup(
+        self, layer: Float[Array, "H W"], xy: Float[Array, "*S 2"], outside: float | Float[Array, ""]
+    ) -> Float[Array, "*S"]:
+        """`layer` (on this grid's cells) at the cell under each world point; `outside` off the grid."""
         rc = self.cell_of(xy)
         h, w = layer.shape
         inside = (rc[..., 0] >= 0) & (rc[..., 0] < h) & (rc[..., 1] >= 0) & (rc[..., 1] < w)
@@ -132,11 +135,11 @@ class CostGrid(eqx.Module):
 
     def cost_at(self, xy: Float[Array, "*S 2"]) -> Float[Array, "*S"]:
         """Cost of the cell under each world point; lethal outside the grid."""
-        return self._lookup(self.cost, xy, float(LETHAL))
+        return self.lookup(self.cost, xy, float(LETHAL))
 
     def depth_at(self, xy: Float[Array, "*S 2"]) -> Float[Array, "*S"]:
         """Depth inside the inscribed radius of the cell under each world point: 1 outside the grid (as on an
         obstacle), 0 everywhere on a grid without a depth layer."""
         if self.depth is None:
             return jnp.zeros(xy.shape[:-1], jnp.float32)
-        return self._lookup(self.depth, xy, 1.0)
+        return self.lookup(self.depth, xy, 1.0)

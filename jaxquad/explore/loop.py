@@ -48,7 +48,7 @@ from jaxquad import slam
 from jaxquad.estimate.laser import planar_twist
 from jaxquad.kernels import critics, mppi
 from jaxquad.kernels.costmap import CostGrid
-from jaxquad.kernels.lie import roll_pitch
+from jaxquad.kernels.lie import R2, roll_pitch
 from jaxquad.kernels.low_obstacles import LowObstacleParams, low_obstacle_scan
 from jaxquad.kernels.occupancy import occupancy_values
 from jaxquad.kernels.scan import BAND_REDUCTIONS
@@ -194,10 +194,10 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
     tick_dt = config.frames_per_tick * float(fleet.frame_dt)
     cam_xy = jnp.asarray(np.asarray(fleet.T_base_camera)[:2, 3], jnp.float32)  # the camera in the base frame, m
 
-    def mark_low(params: ExploreLoopParams, low, b: Body, depth, scan, pose, active):
-        """`low` with this frame's obstacles under the scan plane marked, placed by the SLAM pose: those nearer than
-        what the frame's 2D `scan` sees along their bearings by `LOW_MARGIN` (what the scan sees, the map holds)
-        and never cleared (a cell needs `min_points` points, so few are false)."""
+    def mark_low(params: ExploreLoopParams, low, grid: CostGrid, b: Body, depth, scan, pose, active):
+        """`low` (on `grid`'s cells) with this frame's obstacles under the scan plane marked, placed by the SLAM
+        pose: those nearer than what the frame's 2D `scan` sees along their bearings by `LOW_MARGIN` (what the scan
+        sees, the map holds), never cleared (a cell needs `min_points` points, so few are false)."""
         roll, pitch = roll_pitch(b.est.pose.q_world_base)
         seen = low_obstacle_scan(depth, params.body.intrinsics, roll, pitch, params.low)
         n = seen.bearings.shape[0]
@@ -207,16 +207,14 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
         wall = jax.ops.segment_min(jnp.where(jnp.isfinite(scan.ranges), scan.ranges, jnp.inf), k, num_segments=n + 1)
         wall = wall[:n]
         nearer = seen.ranges < jnp.where(jnp.isfinite(wall), wall, jnp.inf) - LOW_MARGIN
-        c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
-        cam = pose[:2] + jnp.array([c * cam_xy[0] - s * cam_xy[1], s * cam_xy[0] + c * cam_xy[1]])
+        cam = pose[:2] + R2(pose[2]) @ cam_xy
         hit = jnp.isfinite(seen.ranges) & nearer & active & jnp.all(jnp.isfinite(pose))
         ray = pose[2] + seen.bearings
         xy = cam + jnp.where(hit, seen.ranges, 0.0)[:, None] * jnp.stack([jnp.cos(ray), jnp.sin(ray)], axis=-1)
-        g = params.slam_spec.grid
-        col = jnp.floor((xy[:, 0] - g.origin_x) / g.resolution).astype(jnp.int32)
-        row = jnp.floor((xy[:, 1] - g.origin_y) / g.resolution).astype(jnp.int32)
-        inside = hit & (row >= 0) & (row < g.rows) & (col >= 0) & (col < g.cols)
-        return low.at[jnp.where(inside, row, g.rows), col].set(True, mode="drop")
+        rc = grid.cell_of(xy)
+        rows, cols = low.shape
+        inside = hit & (rc[:, 0] >= 0) & (rc[:, 0] < rows) & (rc[:, 1] >= 0) & (rc[:, 1] < cols)
+        return low.at[jnp.where(inside, rc[:, 0], rows), rc[:, 1]].set(True, mode="drop")
 
     def slam_step(params: ExploreLoopParams, s: slam.SlamState, b: Body, scan, odom, active=True):
         """One SLAM step on the frame's scan; an inactive robot's scan has no stamp and adds nothing."""
@@ -309,7 +307,7 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
         scan = body.scan(params.body, b.est, depth[-1])
         slam_state, out = slam_step(params, s.slam, b, scan, odom[-1], active)
         pose = jnp.where(active, out.pose, s.pose)
-        low = mark_low(params, s.low, b, depth[-1], scan, pose, active) if config.low_obstacles else s.low
+        low = mark_low(params, s.low, s.grid, b, depth[-1], scan, pose, active) if config.low_obstacles else s.low
         s = dataclasses.replace(s, body=b, slam=slam_state, pose=pose, low=low)
 
         period = params.nav.replan_ticks * tick_dt

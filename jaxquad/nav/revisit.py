@@ -91,11 +91,7 @@ def _cheapest(
     value: Float[Array, "H W"],
 ) -> tuple[Bool[Array, ""], Int[Array, ""]]:
     """(whether a node qualifies, the cheapest one's slot): old enough, untried, within `max_path`, not here."""
-    h, w = value.shape
-    rc = grid.cell_of(nodes.pose[:, :2])
-    inside = (rc[:, 0] >= 0) & (rc[:, 0] < h) & (rc[:, 1] >= 0) & (rc[:, 1] < w)
-    path = jnp.where(inside, value[jnp.clip(rc[:, 0], 0, h - 1), jnp.clip(rc[:, 1], 0, w - 1)], jnp.inf)
-    path = path * grid.resolution
+    path = grid.lookup(value, nodes.pose[:, :2], jnp.inf) * grid.resolution
     here = _near(nodes, pose[:2], params.reach)
     ok = nodes.mask & (t - nodes.t >= params.min_age) & ~tried & (path <= params.max_path) & ~here
     return jnp.any(ok), jnp.argmin(jnp.where(ok, path, jnp.inf))
