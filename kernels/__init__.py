@@ -1,5 +1,6 @@
 """Pure jitted math for one robot: contact observer, leg twist, scan slicing, Lie groups (`lie`), pose graphs,
-occupancy grids, scan matching, AMCL, costmaps, planning, MPPI, frontiers. `vmap` at the call site."""
+occupancy grids, scan matching, wall-direction headings, AMCL, costmaps, planning, MPPI, frontiers. `vmap` at the
+call site."""
 
 from jaxquad.kernels.contact import ContactEstimate, ContactObserver, ObserverParams, ObserverState
 from jaxquad.kernels.costmap import (
@@ -61,8 +62,22 @@ from jaxquad.kernels.scan_grid import (
 )
 from jaxquad.kernels.scan_match import MatchResult, match_scan, scan_lookup, search_angles
 from jaxquad.kernels.twist import Twist, body_twist, rolling_contact
+from jaxquad.kernels.wall_heading import (
+    HeadingMeasurement,
+    HeadingParams,
+    HeadingSpec,
+    direction_spectrum,
+    measure_heading,
+    wall_directions,
+)
 
 __all__ = [
+    "wall_directions",
+    "measure_heading",
+    "direction_spectrum",
+    "HeadingSpec",
+    "HeadingParams",
+    "HeadingMeasurement",
     "Alignment",
     "AmclInputs",
     "AmclOutput",

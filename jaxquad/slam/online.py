@@ -64,7 +64,9 @@ from jaxquad.kernels.occupancy import OccupancyGrid, init_grid, insert_scan, map
 from jaxquad.kernels.posegraph import ROBUST_CAUCHY, ROBUST_NONE, PoseGraph, optimize
 from jaxquad.kernels.scan_grid import likelihood_grid, world_points
 from jaxquad.kernels.scan_match import match_scan
+from jaxquad.slam import heading as wall_heading
 from jaxquad.slam.state import (
+    EDGE_HEADING,
     EDGE_LEG,
     EDGE_LOOP,
     EDGE_MATCH,
@@ -196,6 +198,16 @@ def _add_node(spec: SlamSpec, params: SlamParams, state: SlamState, pred, inp: S
         info_step = info_step + jnp.where(leg_ok, info_leg, 0.0)
     pose = jnp.where(first, pred, pose)
     cov_step = jnp.where(first, 0.0, jnp.linalg.inv(info_step))
+    heading_error = jnp.asarray(jnp.nan)
+    if spec.wall_heading:
+        pose, var, spectrum, z_h, info_h, h_used, heading_error = wall_heading.update(
+            spec, params, state, pose, cov_step[2, 2], inp, first
+        )
+        state = eqx.tree_at(
+            lambda s: (s.heading_var, s.directions, s.headings),
+            state,
+            (var, spectrum, state.headings + h_used.astype(state.headings.dtype)),
+        )
 
     g = state.graph
     g = eqx.tree_at(lambda g: (g.poses, g.node_mask), g, (g.poses.at[j].set(pose), g.node_mask.at[j].set(True)))
@@ -235,9 +247,11 @@ def _add_node(spec: SlamSpec, params: SlamParams, state: SlamState, pred, inp: S
     state = _add_edge(state, last, j, z_link, info_link, link_robust, link_kind, ~first)
     if spec.lo_constraints != "off":
         state = _add_edge(state, last, j, z_leg, info_leg, ROBUST_NONE, EDGE_LEG, leg_ok)
+    if spec.wall_heading:
+        state = _add_edge(state, jnp.zeros_like(j), j, z_h, info_h, ROBUST_NONE, EDGE_HEADING, h_used)
     grid = _insert(spec, params, state.grid, pose, inp.ranges, inp.valid, state.bearings)
     state = eqx.tree_at(lambda s: s.grid, state, grid)
-    return _close_loop(spec, params, state, j, jnp.where(first, jnp.nan, response))
+    return *_close_loop(spec, params, state, j, jnp.where(first, jnp.nan, response)), heading_error
 
 
 def _insert(spec: SlamSpec, params: SlamParams, grid: OccupancyGrid, base, ranges, valid, bearings) -> OccupancyGrid:
@@ -355,9 +369,9 @@ def step(spec: SlamSpec, params: SlamParams, state: SlamState, inp: SlamInputs) 
     due = usable & ~full & wanted
 
     nan = jnp.asarray(jnp.nan)
-    none = (state, nan, jnp.asarray(False), jnp.asarray(-1, jnp.int32), nan)
+    none = (state, nan, jnp.asarray(False), jnp.asarray(-1, jnp.int32), nan, nan)
     add = lambda c: _add_node(spec, params, c[0], pred, inp)  # noqa: E731
-    state, response, closed, loop_node, loop_chi2 = run_if(due, add, none)
+    state, response, closed, loop_node, loop_chi2, heading_error = run_if(due, add, none)
     if spec.refresh_map:
         state = refresh_map(spec, params, state)
     new = state.n_nodes - 1
@@ -375,6 +389,7 @@ def step(spec: SlamSpec, params: SlamParams, state: SlamState, inp: SlamInputs) 
         loop_closed=closed,
         loop_node=loop_node,
         loop_chi2=loop_chi2,
+        heading_error=heading_error,
     )
     return state, out
 

@@ -14,6 +14,7 @@ from jaxquad.kernels.loop_closure import LoopParams, LoopSpec
 from jaxquad.kernels.occupancy import GridSpec, OccupancyParams
 from jaxquad.kernels.posegraph import SolverParams
 from jaxquad.kernels.scan_grid import MatchParams, MatchSpec, cells_for_range
+from jaxquad.kernels.wall_heading import HeadingParams
 from jaxquad.slam.state import SlamParams, SlamSpec
 
 DEFAULTS_FILE = Path(__file__).with_name("slam.yaml")
@@ -26,12 +27,14 @@ _INTEGER = (
     "solver_max_iterations",
     "robust_match_links",
     "robust_loop_edges",
+    "wall_heading",
 )
 _FRACTION = (
     "link_match_minimum_response_fine",
     "loop_match_minimum_response_coarse",
     "loop_match_minimum_response_fine",
     "loop_ambiguity_ratio",
+    "wall_heading_min_quality",
 )
 _MAY_BE_ZERO = (
     "minimum_travel_distance",
@@ -44,6 +47,8 @@ _MAY_BE_ZERO = (
     "loop_ambiguity_distance",
     "robust_match_links",
     "robust_loop_edges",
+    "wall_heading",
+    "wall_heading_min_quality",
 )
 
 
@@ -89,7 +94,7 @@ def load_params(path: str | os.PathLike | None = None, laser: bool = False) -> d
             values[key] = int(v)
         if v < 0 or (v == 0 and key not in _MAY_BE_ZERO) or (key in _FRACTION and v > 1):
             raise ValueError(f"params file {source}: {key} = {v!r} is out of range")
-    for key in ("robust_match_links", "robust_loop_edges"):
+    for key in ("robust_match_links", "robust_loop_edges", "wall_heading"):
         if values[key] not in (0, 1):
             raise ValueError(f"params file {source}: {key} must be 0 or 1, got {values[key]!r}")
     if not (0.5 < values["occupancy_hit_probability"] < 1.0 and 0.0 < values["occupancy_miss_probability"] < 0.5):
@@ -137,6 +142,7 @@ def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=
         match=match,
         loop=LoopSpec(coarse=coarse, fine=match, chain=v["loop_chain_scans"]),
         lo_constraints=lo_constraints,
+        wall_heading=v["wall_heading"] == 1,
     )
     f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     mp = MatchParams(smear_sigma=f(v["correlation_search_space_smear_deviation"]), range_max=f(v["match_max_range"]))
@@ -173,5 +179,8 @@ def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=
         loop_max_chi2=f(v["loop_consistency_chi2"]),
         robust_links=jnp.asarray(v["robust_match_links"] == 1),
         robust_loops=jnp.asarray(v["robust_loop_edges"] == 1),
+        heading=HeadingParams(window_m=f(v["wall_heading_window"]), max_range=f(v["wall_heading_max_range"])),
+        heading_std=f(v["wall_heading_std"]),
+        heading_min_quality=f(v["wall_heading_min_quality"]),
     )
     return spec, params

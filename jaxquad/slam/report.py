@@ -34,6 +34,7 @@ EDGE_KIND_NAMES = {
     online.EDGE_ODOMETRY: "odometry",
     online.EDGE_LEG: "leg_odometry",
     online.EDGE_LOOP: "loop",
+    online.EDGE_HEADING: "wall_heading",
 }
 
 
@@ -88,6 +89,8 @@ def edge_errors(state, out, gt: np.ndarray) -> dict | None:
     truth = jnp.asarray(gt[node_scan], jnp.float32)
     ei, ej = np.asarray(g.edge_i[:m])[keep], np.asarray(g.edge_j[:m])[keep]
     e = np.asarray(jax.vmap(edge_error)(truth[ei], truth[ej], jnp.asarray(g.measurement[:m])[keep]), np.float64)
+    # An edge scores only the components it has information on (a wall-heading prior: its heading alone).
+    e = e * (np.diagonal(np.asarray(g.information[:m], np.float64)[keep], axis1=1, axis2=2) > 0)
     chi2 = np.einsum("ma,mab,mb->m", e, np.asarray(g.information[:m], np.float64)[keep], e)
     rows = {}
     for kind, name in EDGE_KIND_NAMES.items():

@@ -12,21 +12,24 @@ from jaxquad.kernels.loop_closure import LoopParams, LoopSpec
 from jaxquad.kernels.occupancy import GridSpec, OccupancyGrid, OccupancyParams, init_grid
 from jaxquad.kernels.posegraph import PoseGraph, SolverParams
 from jaxquad.kernels.scan_grid import MatchParams, MatchSpec
+from jaxquad.kernels.wall_heading import HeadingParams, HeadingSpec
 
 LO_CONSTRAINTS = ("off", "velocity", "preintegrated")
-EDGE_MATCH, EDGE_ODOMETRY, EDGE_LEG, EDGE_LOOP = 0, 1, 2, 3  # what each edge slot holds
+EDGE_MATCH, EDGE_ODOMETRY, EDGE_LEG, EDGE_LOOP, EDGE_HEADING = 0, 1, 2, 3, 4  # what each edge slot holds
 
 
 class SlamSpec(eqx.Module):
     """Static structure: capacities, search sizes, the map's geometry and the constraint kind."""
 
     grid: GridSpec = eqx.field(static=True)
-    nodes: int = eqx.field(static=True, default=1024)  # node capacity; 3 edge slots each
+    nodes: int = eqx.field(static=True, default=1024)  # node capacity; 3 edge slots each (4 with wall_heading)
     buffer: int = eqx.field(static=True, default=70)  # running-buffer scans (slam_toolbox's scan_buffer_size)
     match: MatchSpec = eqx.field(static=True, default_factory=MatchSpec)
     loop: LoopSpec = eqx.field(static=True, default_factory=LoopSpec)
     lo_constraints: str = eqx.field(static=True, default="preintegrated")
     refresh_map: bool = eqx.field(static=True, default=True)
+    wall_heading: bool = eqx.field(static=True, default=False)  # heading priors from wall directions
+    heading: HeadingSpec = eqx.field(static=True, default_factory=HeadingSpec)
 
     def __check_init__(self):
         if self.lo_constraints not in LO_CONSTRAINTS:
@@ -34,7 +37,7 @@ class SlamSpec(eqx.Module):
 
     @property
     def edges(self) -> int:
-        return 3 * self.nodes
+        return (4 if self.wall_heading else 3) * self.nodes
 
 
 def _f(x) -> Array:
@@ -62,6 +65,10 @@ class SlamParams(eqx.Module):
     velocity_max_dt: Float[Array, ""] = eqx.field(default_factory=lambda: _f(5.0))  # s
     lo_correlation_s: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.1))  # s
     loop_max_chi2: Float[Array, ""] = eqx.field(default_factory=lambda: _f(16.27))  # chi-square, 3 dof
+    heading: HeadingParams = eqx.field(default_factory=HeadingParams)  # wall directions (SlamSpec.wall_heading)
+    heading_std: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.026))  # rad, of one measured heading
+    heading_min_quality: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.5))  # correlation quality, 0-1
+    heading_max_chi2: Float[Array, ""] = eqx.field(default_factory=lambda: _f(10.83))  # chi-square, 1 dof
 
 
 class SlamInputs(eqx.Module):
@@ -99,6 +106,9 @@ class SlamState(eqx.Module):
     map_stale: Bool[Array, ""]  # poses moved since the map was drawn
     loops: Int[Array, ""]  # accepted loop closures
     full: Bool[Array, ""]  # node capacity reached: later scans add no node
+    directions: Float[Array, "k 2"]  # the map's wall-direction spectrum (kernels.wall_heading)
+    heading_var: Float[Array, ""]  # rad^2: variance of the last node's heading in the map frame
+    headings: Int[Array, ""]  # accepted wall-heading priors
 
 
 class SlamOutput(eqx.Module):
@@ -110,6 +120,7 @@ class SlamOutput(eqx.Module):
     loop_closed: Bool[Array, ""]
     loop_node: Int[Array, ""]  # the old node of an accepted closure (-1 otherwise)
     loop_chi2: Float[Array, ""]  # consistency chi-square of a candidate that passed the match tests (NaN otherwise)
+    heading_error: Float[Array, ""]  # rad: a new node's heading error from the walls, when used (NaN otherwise)
 
 
 def init(spec: SlamSpec, params: SlamParams, bearings: Float[Array, " b"]) -> SlamState:
@@ -148,4 +159,7 @@ def init(spec: SlamSpec, params: SlamParams, bearings: Float[Array, " b"]) -> Sl
         map_stale=jnp.asarray(False),
         loops=zero_i,
         full=jnp.asarray(False),
+        directions=jnp.zeros((spec.heading.harmonics, 2)),
+        heading_var=zero_f,
+        headings=zero_i,
     )

@@ -1,0 +1,62 @@
+"""Wall-direction heading priors for the online SLAM (`SlamSpec.wall_heading`), one new node at a time.
+
+The graph's heading otherwise drifts with the leg odometry's (the IMU's yaw, a random walk) between loop
+closures, and in a hall of long aisles closures are few. Each new node's scan is measured against the
+map's wall directions (`kernels.wall_heading`): the map's direction spectrum is the sum of the node scans'
+spectra, each rotated by its node's heading. A measurement is used when its quality reaches
+`heading_min_quality` and it agrees with the node's heading variance: error^2 / (P + R) at most
+`heading_max_chi2` (R = `heading_std`^2). P, the variance of the last node's heading in the map frame,
+grows by each node's link variance and shrinks with each measurement used, as a scalar Kalman filter
+would; the node's heading moves by the gain P / (P + R) times the error, and the measurement enters the
+graph as an edge from node 0 (held fixed) with information on the heading alone, so later optimizations
+keep it. Loop closures leave P as it was (an upper bound).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from jaxquad.kernels.lie import se2, wrap_angle, xy_theta
+from jaxquad.kernels.wall_heading import direction_spectrum, measure_heading, wall_directions
+from jaxquad.slam.state import SlamInputs, SlamParams, SlamSpec, SlamState
+
+
+def update(
+    spec: SlamSpec,
+    params: SlamParams,
+    state: SlamState,
+    pose: Float[Array, "3"],
+    step_var: Float[Array, ""],
+    inp: SlamInputs,
+    first: Bool[Array, ""],
+):
+    """A new node's heading corrected by the walls.
+
+    Returns (pose, heading variance, the map's spectrum with the node's scan added, the prior edge's
+    measurement from node 0 and its information, whether it is used, the measured error (rad, NaN when
+    unused))."""
+    laser = params.T_base_laser[2]
+    direction, weight = wall_directions(spec.heading, params.heading, inp.ranges, state.bearings, inp.valid)
+    var = state.heading_var + jnp.where(first, 0.0, step_var)
+    scan = direction_spectrum(spec.heading, direction, weight, pose[2] + laser)
+    meas = measure_heading(spec.heading, params.heading, scan, state.directions)
+    R = params.heading_std**2
+    chi2 = meas.error**2 / (var + R)
+    used = (
+        ~first
+        & (meas.quality >= params.heading_min_quality)
+        & (chi2 <= params.heading_max_chi2)
+        & jnp.isfinite(meas.error)
+        & jnp.isfinite(var)
+    )
+    gain = var / (var + R)
+    measured = pose[2] - meas.error
+    pose = pose.at[2].set(wrap_angle(pose[2] - jnp.where(used, gain * meas.error, 0.0)))
+    var = jnp.where(used, (1.0 - gain) * var, var)
+    spectrum = state.directions + direction_spectrum(spec.heading, direction, weight, pose[2] + laser)
+    x0 = state.graph.poses[0]
+    z = xy_theta(se2(x0).inverse() @ se2(pose))
+    z = z.at[2].set(wrap_angle(measured - x0[2]))
+    info = jnp.diag(jnp.array([0.0, 0.0, 1.0]) / R)
+    return pose, var, spectrum, z, info, used, jnp.where(used, meas.error, jnp.nan)
