@@ -19,7 +19,8 @@ reference scan, so its error does not add up from node to node.
 - `measure_heading`: the cross-correlation of a scan's spectrum with the map's, smoothed by a Gaussian of
   `kernel_std`, searched over +-`search` around the current heading; the peak (refined by a parabola)
   gives the heading error, and the correlation at the peak over the two spectra's norms (Cauchy-Schwarz:
-  at most 1) its quality. A scan whose walls run in no mapped direction has a low quality.
+  at most 1) its quality: 0 when the peak lies on the search's edge. A scan whose walls run in no mapped
+  direction has a low quality.
 
 Directions of the map repeat with its walls' symmetry (every 90 deg in a rectilinear building), so the
 search must stay well inside that period: the heading must already be known to better than it.
@@ -61,7 +62,7 @@ class HeadingParams(eqx.Module):
 
 class HeadingMeasurement(eqx.Module):
     error: Float[Array, ""]  # rad: the heading used minus the heading at which the scan fits the map best
-    quality: Float[Array, ""]  # peak correlation / (|scan| |map|), at most 1; 0 when either is empty
+    quality: Float[Array, ""]  # peak correlation / (|scan| |map|), at most 1; 0 when either is empty or on the edge
 
 
 def wall_directions(
@@ -128,11 +129,14 @@ def measure_heading(
     delta = jnp.linspace(-1.0, 1.0, spec.steps) * params.search
     a = 2.0 * k[None, :] * delta[:, None]
     corr = jnp.cos(a) @ cross_re + jnp.sin(a) @ cross_im  # Re(sum_k smooth conj(s) m exp(-2 j k delta))
-    i = jnp.clip(jnp.argmax(corr), 1, spec.steps - 2)
+    peak = jnp.argmax(corr)
+    i = jnp.clip(peak, 1, spec.steps - 2)
     lo, mid, hi = corr[i - 1], corr[i], corr[i + 1]
     curve = lo - 2.0 * mid + hi
     shift = jnp.where(curve < 0, jnp.clip(0.5 * (lo - hi) / jnp.where(curve < 0, curve, -1.0), -1.0, 1.0), 0.0)
     best = delta[i] + shift * (delta[1] - delta[0])
     norm = jnp.sqrt(jnp.sum(smooth * (sr**2 + si**2)) * jnp.sum(smooth * (mr**2 + mi**2)))
-    quality = jnp.where(norm > 0, corr[i] / jnp.where(norm > 0, norm, 1.0), 0.0)
+    # A peak on the search's edge is no peak: the best alignment lies outside the search.
+    inside = (peak > 0) & (peak < spec.steps - 1) & (norm > 0)
+    quality = jnp.where(inside, corr[i] / jnp.where(norm > 0, norm, 1.0), 0.0)
     return HeadingMeasurement(error=-best, quality=quality)

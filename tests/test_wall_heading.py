@@ -122,8 +122,9 @@ def test_search_equals_a_pairwise_numpy_correlation():
 def test_known_heading_error_recovered_and_an_unrelated_room_rejected():
     """Map directions from five scans at their true headings; a scan from a sixth pose whose heading is off
     by e gives the error e: within 0.15 deg noise-free, and with the simulated depth noise (1 % of r^2, map
-    and scan) within 1.5 deg, the error moving with e one for one. A room turned 45 deg (its walls in no
-    mapped direction within the search) correlates at most weakly; an empty map gives quality 0."""
+    and scan) within 1.5 deg, the error moving with e one for one; 15 deg off, outside the search, none.
+    A room turned 45 deg (its walls in no mapped direction within the search) correlates at most weakly;
+    an empty map gives quality 0."""
     directions, spectrum, measure = _jit()
     pose = np.array([0.5, 0.5, 0.9])
     errors = np.deg2rad([-6.0, -1.0, 2.5, 7.0])
@@ -135,6 +136,13 @@ def test_known_heading_error_recovered_and_an_unrelated_room_rejected():
         assert np.all(np.abs(np.rad2deg(measured - errors)) < tol), (noise, np.rad2deg(measured))
         np.testing.assert_allclose(np.rad2deg(measured - errors), np.rad2deg(measured[0] - errors[0]), atol=0.1)
         assert min(float(g.quality) for g in got) > 0.5
+        # 15 deg off, the walls' best alignment lies outside the +-10 deg search: no measurement (in the room
+        # without the turned table, whose directions give a weaker peak inside the search).
+        bare = ROOM[:-4]
+        ref = jnp.asarray(_map_spectrum(bare, POSES, noise=noise))
+        db, wb = directions(jnp.asarray(_scans(bare, pose[None], noise, seed=3)))
+        far = measure(spectrum(db, wb, jnp.asarray([pose[2] + np.deg2rad(15.0)], jnp.float32))[0], ref)
+        assert float(far.quality) == 0.0
     turned = _rotated(box(-4, -3, 4, 3), np.pi / 4)
     d, w = directions(jnp.asarray(_scans(turned, pose[None])))
     got = measure(spectrum(d, w, jnp.asarray([pose[2]], jnp.float32))[0], reference)

@@ -5,11 +5,21 @@ closures, and in a hall of long aisles closures are few. Each new node's scan is
 map's wall directions (`kernels.wall_heading`): the map's direction spectrum is the sum of the node scans'
 spectra, each rotated by its node's heading. A measurement is used when its quality reaches
 `heading_min_quality` and it agrees with the node's heading variance: error^2 / (P + R) at most
-`heading_max_chi2` (R = `heading_std`^2). P, the variance of the last node's heading in the map frame,
-grows by each node's link variance and shrinks with each measurement used, as a scalar Kalman filter
-would; the node's heading moves by the gain P / (P + R) times the error, and the measurement enters the
-graph as an edge from node 0 (held fixed) with information on the heading alone, so later optimizations
-keep it. Loop closures leave P as it was (an upper bound).
+`heading_max_chi2`.
+
+R, the measurement's variance, is `heading_variance_scale` over the scan's summed direction weights (its
+walls' information) plus `heading_min_std`^2. The returns' fits overlap and the walls' faces are not ideal
+lines, so the weights overstate the information: on simulated depth scans (noise 1 % of r^2; warehouse and
+house, 1- and 5-row bands, at the true poses) the error times the square root of the summed weights had an
+rms of 5.4-7.0 rad: a scale of 50 would give a mean chi-square of 0.5-0.9. The default, 100, allows for
+consecutive nodes' measurements sharing their walls' errors: on 8 Go2 route walks of 300 s in the warehouse
+(1-row scans, loop closures off) the final position error was 0.26 m with 100 and 0.32 m with 50.
+
+P, the variance of the last node's heading in the map frame, grows by each node's link variance and shrinks
+with each measurement used, as a scalar Kalman filter would; the node's heading moves by the gain
+P / (P + R) times the error, and the measurement enters the graph as an edge from node 0 (held fixed) with
+information on the heading alone, so later optimizations keep it. Loop closures leave P as it was (an upper
+bound).
 """
 
 from __future__ import annotations
@@ -41,7 +51,7 @@ def update(
     var = state.heading_var + jnp.where(first, 0.0, step_var)
     scan = direction_spectrum(spec.heading, direction, weight, pose[2] + laser)
     meas = measure_heading(spec.heading, params.heading, scan, state.directions)
-    R = params.heading_std**2
+    R = params.heading_variance_scale / jnp.maximum(jnp.sum(weight), 1e-9) + params.heading_min_std**2
     chi2 = meas.error**2 / (var + R)
     used = (
         ~first

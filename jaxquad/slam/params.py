@@ -49,6 +49,7 @@ _MAY_BE_ZERO = (
     "robust_loop_edges",
     "wall_heading",
     "wall_heading_min_quality",
+    "wall_heading_variance_scale",
 )
 
 
@@ -180,7 +181,8 @@ def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=
         robust_links=jnp.asarray(v["robust_match_links"] == 1),
         robust_loops=jnp.asarray(v["robust_loop_edges"] == 1),
         heading=HeadingParams(window_m=f(v["wall_heading_window"]), max_range=f(v["wall_heading_max_range"])),
-        heading_std=f(v["wall_heading_std"]),
+        heading_variance_scale=f(v["wall_heading_variance_scale"]),
+        heading_min_std=f(v["wall_heading_min_std"]),
         heading_min_quality=f(v["wall_heading_min_quality"]),
     )
     return spec, params

@@ -66,7 +66,8 @@ class SlamParams(eqx.Module):
     lo_correlation_s: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.1))  # s
     loop_max_chi2: Float[Array, ""] = eqx.field(default_factory=lambda: _f(16.27))  # chi-square, 3 dof
     heading: HeadingParams = eqx.field(default_factory=HeadingParams)  # wall directions (SlamSpec.wall_heading)
-    heading_std: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.026))  # rad, of one measured heading
+    heading_variance_scale: Float[Array, ""] = eqx.field(default_factory=lambda: _f(100.0))  # rad^2 x weight
+    heading_min_std: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.0087))  # rad
     heading_min_quality: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.5))  # correlation quality, 0-1
     heading_max_chi2: Float[Array, ""] = eqx.field(default_factory=lambda: _f(10.83))  # chi-square, 1 dof
 
