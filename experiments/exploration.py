@@ -44,7 +44,7 @@ def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     from jaxquad.slam import load_params
 
     keep = ("runs", "seconds", "seed", "samples", "horizon", "every", "band_height", "band_reduce")
-    keep += ("map_miss_probability", "revisit_after", "footprint_padding", "low_obstacles")
+    keep += ("map_miss_probability", "revisit_after", "footprint_padding", "low_obstacles", "wall_heading")
     slam = load_params(args.slam_params) if args.slam_params else None  # the values: an edited file is another cell
     return {"robot": robot, "world": world, "variant": variant, "traces": args.traces, "slam_params": slam} | {
         k: getattr(args, k) for k in keep
@@ -75,6 +75,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         saved = json.loads(done.read_text())
         # rows kept before --slam-params and the options below it had none: the values they ran with
         old = {"slam_params": None, "revisit_after": 0.0, "footprint_padding": 0.1, "low_obstacles": False}
+        old |= {"wall_heading": "off"}
         if old | saved.get("settings", {}) != settings:
             raise CheckpointError(f"{done}: a finished cell of other settings; remove it or choose another folder")
         print(f"{name}: finished earlier ({done})", file=sys.stderr, flush=True)
@@ -94,6 +95,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         band_reduce=args.band_reduce,
         slam_params=args.slam_params,
         map_miss_probability=args.map_miss_probability,
+        wall_heading=args.wall_heading == "on",
         revisit_after=args.revisit_after,
         footprint_padding=args.footprint_padding,
         low_obstacles=args.low_obstacles,

@@ -202,3 +202,34 @@ def test_online_slam_holds_its_heading_with_wall_priors():
             assert used.sum() == int(state.headings[0])
     drift = np.rad2deg(0.004 * dt * S)
     assert final[False] > 0.8 * drift and final[True] < 0.3 * drift, (final, drift)
+
+
+def test_settings_of_the_slam_file_and_of_exploration(tmp_path):
+    """slam.yaml's wall_heading is 0 or 1 (one-line error otherwise) and turns the spec's edge slots to 4 per
+    node; exploration gives it to the full variant's SLAM unless --wall-heading off, never to the baseline's."""
+    import argparse
+
+    import pytest
+
+    from jaxquad.explore.cli import add_loop_arguments
+    from jaxquad.explore.fleet import ExploreConfig
+    from jaxquad.slam import grid_spec, load_params, slam_config
+
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("wall_heading: 2\n")
+    with pytest.raises(ValueError, match="wall_heading must be 0 or 1"):
+        load_params(bad)
+    grid = grid_spec((0.0, 0.0, 4.0, 4.0), 0.05, 4.0)
+    values = load_params()
+    assert values["wall_heading"] == 0
+    off, _ = slam_config(values, grid, "preintegrated")
+    on, _ = slam_config(values | {"wall_heading": 1}, grid, "preintegrated")
+    assert (off.wall_heading, on.wall_heading) == (False, True) and on.edges == 4 * on.nodes == 4 * off.edges // 3
+
+    assert ExploreConfig().slam_values()["wall_heading"] == 1
+    assert ExploreConfig(variant="baseline").slam_values()["wall_heading"] == 0
+    assert ExploreConfig(wall_heading=False).slam_values()["wall_heading"] == 0
+    parser = argparse.ArgumentParser()
+    add_loop_arguments(parser)
+    assert parser.parse_args([]).wall_heading == "on"
+    assert parser.parse_args(["--wall-heading", "off"]).wall_heading == "off"

@@ -34,6 +34,13 @@ def add_loop_arguments(parser: argparse.ArgumentParser) -> None:
         f"(default {c.map_miss_probability})",
     )
     parser.add_argument(
+        "--wall-heading",
+        choices=("on", "off"),
+        default="on" if c.wall_heading else "off",
+        help="the full variant's SLAM corrects its heading by the walls' directions against the map's, in place of "
+        f"the SLAM file's wall_heading (default {'on' if c.wall_heading else 'off'}; the baseline variant: never)",
+    )
+    parser.add_argument(
         "--revisit-after",
         type=float,
         default=c.revisit_after,
@@ -176,6 +183,7 @@ def run(args: argparse.Namespace) -> int:
         slam_params=args.slam_params,
         map_range=args.map_range,
         map_miss_probability=args.map_miss_probability,
+        wall_heading=args.wall_heading == "on",
         revisit_after=args.revisit_after,
         low_obstacles=args.low_obstacles,
         footprint_padding=args.footprint_padding,

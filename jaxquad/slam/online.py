@@ -48,6 +48,9 @@ optimized (`kernels.posegraph`, node 0 fixed). Match links are Cauchy-robust and
 default (`robust_links`, `robust_loops`; laser logs swap them: there the links are the only chain). The occupancy map
 takes every node's scan at its node's pose; after an optimization it is redrawn from all nodes
 (`SlamSpec.refresh_map`; a fleet may clear that and call `refresh_map` itself).
+
+With `SlamSpec.wall_heading` a new node's heading is also measured against the map's wall directions before
+its scan enters the map, and a heading-only edge from node 0 keeps the measurement (`jaxquad.slam.heading`).
 """
 
 from __future__ import annotations
