@@ -46,9 +46,11 @@ def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     keep = ("runs", "seconds", "seed", "samples", "horizon", "every", "band_height", "band_reduce")
     keep += ("map_miss_probability", "revisit_after", "footprint_padding", "low_obstacles", "wall_heading")
     slam = load_params(args.slam_params) if args.slam_params else None  # the values: an edited file is another cell
-    return {"robot": robot, "world": world, "variant": variant, "traces": args.traces, "slam_params": slam} | {
-        k: getattr(args, k) for k in keep
-    }
+    settings = {"robot": robot, "world": world, "variant": variant, "traces": args.traces, "slam_params": slam}
+    settings |= {k: getattr(args, k) for k in keep}
+    if variant != "full":  # the baseline's SLAM never takes wall-heading priors
+        settings["wall_heading"] = "off"
+    return settings
 
 
 def _finished_row(args, robot: str, world: str, variant: str) -> Path | None:

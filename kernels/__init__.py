@@ -72,12 +72,6 @@ from jaxquad.kernels.wall_heading import (
 )
 
 __all__ = [
-    "wall_directions",
-    "measure_heading",
-    "direction_spectrum",
-    "HeadingSpec",
-    "HeadingParams",
-    "HeadingMeasurement",
     "Alignment",
     "AmclInputs",
     "AmclOutput",
@@ -95,6 +89,9 @@ __all__ = [
     "FrontierChoice",
     "FrontierParams",
     "GridSpec",
+    "HeadingMeasurement",
+    "HeadingParams",
+    "HeadingSpec",
     "IcpParams",
     "LikelihoodField",
     "LikelihoodGrid",
@@ -131,6 +128,7 @@ __all__ = [
     "costmap_layers",
     "depth_frame",
     "descend",
+    "direction_spectrum",
     "distance_at",
     "distance_transform",
     "edge_error",
@@ -149,6 +147,7 @@ __all__ = [
     "likelihood_field",
     "likelihood_grid",
     "map_from_scans",
+    "measure_heading",
     "occupancy_values",
     "match_scan",
     "measurement_update",
@@ -170,5 +169,6 @@ __all__ = [
     "stance_height",
     "step_weights",
     "systematic_resample",
+    "wall_directions",
     "world_points",
 ]

@@ -157,6 +157,7 @@ def test_online_slam_holds_its_heading_with_wall_priors():
     import equinox as eqx
 
     from jaxquad.slam import SlamParams, SlamSpec, grid_spec, run_fleet
+    from jaxquad.slam.report import edge_errors, robot_slice
     from jaxquad.slam.state import EDGE_HEADING
 
     corners = [(-2.5, -1.8), (2.5, -1.8), (2.5, 1.8), (-2.5, 1.8), (-2.5, -1.8), (2.5, -1.8)]
@@ -200,6 +201,10 @@ def test_online_slam_holds_its_heading_with_wall_priors():
             assert int(state.headings[0]) > n // 2
             used = np.isfinite(np.asarray(out.heading_error[0]))
             assert used.sum() == int(state.headings[0])
+            # Scored at the truth, a prior holds only a heading: its x, y are not scored, its chi-square has 1 dof.
+            row = edge_errors(robot_slice(state, 0), robot_slice(out, 0), truth)["wall_heading"]
+            assert row["n"] == int(state.headings[0]) and np.isnan(row["rms_x_m"]) and np.isnan(row["rms_y_m"])
+            assert 0 < row["rms_theta_rad"] < np.deg2rad(2.0) and row["off"] == 0
     drift = np.rad2deg(0.004 * dt * S)
     assert final[False] > 0.8 * drift and final[True] < 0.3 * drift, (final, drift)
 
@@ -233,3 +238,63 @@ def test_settings_of_the_slam_file_and_of_exploration(tmp_path):
     add_loop_arguments(parser)
     assert parser.parse_args([]).wall_heading == "on"
     assert parser.parse_args(["--wall-heading", "off"]).wall_heading == "off"
+
+
+def test_node_update_gain_gate_and_edge():
+    """`jaxquad.slam.heading.update` with a laser mounted 0.1 rad off the base, node 0 at a non-zero heading and a
+    known prior variance: the measured error is the node's heading error; the heading moves by P / (P + R) of it
+    with R from the scan's summed weights; the variance shrinks to (1 - K) P; the edge holds the measured heading
+    relative to node 0, on the heading alone. An error beyond the gate is not used and leaves the pose."""
+    import equinox as eqx
+
+    from jaxquad.slam import SlamParams, SlamSpec, grid_spec
+    from jaxquad.slam.heading import update
+    from jaxquad.slam.state import SlamInputs, init
+
+    laser = 0.1
+    spec = SlamSpec(grid=grid_spec((-5.0, -4.0, 5.0, 4.0), 0.05, 6.0), nodes=8, wall_heading=True)
+    params = SlamParams(T_base_laser=jnp.asarray([0.2, 0.0, laser], jnp.float32))
+    state = init(spec, params, jnp.asarray(BEARINGS, jnp.float32))
+    x0 = np.array([0.3, -0.2, 0.25])
+    reference = _map_spectrum(ROOM, POSES)
+    sensor = np.array([0.5, 0.5, 0.9])  # the scan's true sensor pose
+    ranges = _scans(ROOM, sensor[None])[0]
+    inp = SlamInputs(
+        t=jnp.asarray(0.0),
+        odom=jnp.zeros(3),
+        ranges=jnp.asarray(ranges),
+        valid=jnp.asarray(ranges > 0),
+        lo_pose=jnp.zeros(3),
+        lo_twist=jnp.zeros(3),
+        lo_twist_cov=jnp.zeros((3, 3)),
+        lo_valid=jnp.asarray(True),
+    )
+    _, weight = wall_directions(SPEC, PARAMS, jnp.asarray(ranges), jnp.asarray(BEARINGS, jnp.float32), inp.valid)
+    R = float(params.heading_variance_scale) / float(np.sum(weight)) + float(params.heading_min_std) ** 2
+    run = jax.jit(lambda s, pose, var: update(spec, params, s, pose, var, inp, jnp.asarray(False)))
+    directions, spectrum, measure = _jit()
+    for err, P, step, expect_used in ((np.deg2rad(3.0), 4e-4, 1e-5, True), (np.deg2rad(6.0), 1e-8, 0.0, False)):
+        st = eqx.tree_at(
+            lambda s: (s.directions, s.heading_var, s.graph.poses),
+            state,
+            (jnp.asarray(reference, jnp.float32), jnp.asarray(P, jnp.float32), state.graph.poses.at[0].set(x0)),
+        )
+        pose = np.array([1.0, 2.0, sensor[2] - laser + err])
+        new, var, directions_map, z, info, used, measured = (np.asarray(a, np.float64) for a in run(st, pose, step))
+        assert bool(used) == expect_used
+        if not expect_used:
+            # a good match (quality >= 0.5) refused by the gate alone
+            d, w = directions(jnp.asarray(ranges[None]))
+            meas = measure(spectrum(d, w, jnp.asarray([pose[2] + laser], jnp.float32))[0], jnp.asarray(reference))
+            assert float(meas.quality) >= 0.5 and float(meas.error) ** 2 / (P + step + R) > 10.83
+            np.testing.assert_allclose(new, pose, atol=1e-6)
+            assert np.isnan(measured) and abs(var - (P + step)) < 1e-12
+            continue
+        assert abs(measured - err) < np.deg2rad(0.15)
+        K = (P + step) / (P + step + R)
+        np.testing.assert_allclose(new[2], pose[2] - K * measured, atol=1e-6)
+        np.testing.assert_allclose(new[:2], pose[:2])
+        np.testing.assert_allclose(var, (1 - K) * (P + step), rtol=1e-4)
+        np.testing.assert_allclose(z[2], pose[2] - measured - x0[2], atol=1e-6)
+        np.testing.assert_allclose(info, np.diag([0.0, 0.0, 1.0 / R]), rtol=1e-4)
+        assert np.abs(directions_map - reference).max() > 0  # the scan's directions joined the map's

@@ -63,8 +63,8 @@ class ExploreConfig:
     map_miss_probability: float = 0.3
     # The full variant's SLAM takes heading priors from the walls' directions (`kernels.wall_heading`), in place of the
     # SLAM file's `wall_heading`; the baseline's never does. 100 Go2 runs, H200: warehouse 240 s lost 11 -> 3, SLAM
-    # error 0.083 -> 0.055 m (median); house 600 s coverage 0.918 against 0.919, runs with 95 % of the clear cells
-    # 57 -> 72 (README, exploration).
+    # position error at 4 min 0.216 -> 0.117 m (median); house 600 s coverage 0.918 against 0.919, runs with 95 % of
+    # the clear cells 57 -> 72 (README, exploration).
     wall_heading: bool = True
     # m added to the footprint's covering disks in the costmap (the planner's and MPPI's inscribed radius): the
     # SLAM pose is off by about 0.1 m (median), and the robot drove its disks to within a cell of mapped walls.

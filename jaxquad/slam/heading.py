@@ -3,15 +3,16 @@
 The graph's heading otherwise drifts with the leg odometry's (the IMU's yaw, a random walk) between loop
 closures, and in a hall of long aisles closures are few. Each new node's scan is measured against the
 map's wall directions (`kernels.wall_heading`): the map's direction spectrum is the sum of the node scans'
-spectra, each rotated by its node's heading. A measurement is used when its quality reaches
-`heading_min_quality` and it agrees with the node's heading variance: error^2 / (P + R) at most
+spectra, each rotated by its node's heading when it was added (later optimizations move the nodes, not the
+spectrum: their corrections, about a degree, are within its 1 deg smoothing). A measurement is used when its
+quality reaches `heading_min_quality` and it agrees with the node's heading variance: error^2 / (P + R) at most
 `heading_max_chi2`.
 
 R, the measurement's variance, is `heading_variance_scale` over the scan's summed direction weights (its
 walls' information) plus `heading_min_std`^2. The returns' fits overlap and the walls' faces are not ideal
 lines, so the weights overstate the information: on simulated depth scans (noise 1 % of r^2; warehouse and
 house, 1- and 5-row bands, at the true poses) the error times the square root of the summed weights had an
-rms of 5.4-7.0 rad: a scale of 50 would give a mean chi-square of 0.5-0.9. The default, 100, allows for
+rms of 5.4-7.0 rad: a scale of 50 would give a mean chi-square of 0.6-1.0. The default, 100, allows for
 consecutive nodes' measurements sharing their walls' errors: on 8 Go2 route walks of 300 s in the warehouse
 (1-row scans, loop closures off) the final position error was 0.26 m with 100 and 0.32 m with 50.
 

@@ -4,7 +4,8 @@
     state, out = step(spec, params, state, inputs)      # once per scan, in time order
     state = finish(spec, params, state)                  # last optimization and map
 
-Everything lives in fixed-capacity arrays (`SlamSpec.nodes` node slots, 3 edge slots per node), so
+Everything lives in fixed-capacity arrays (`SlamSpec.nodes` node slots, 3 edge slots per node, 4 with wall-heading
+priors), so
 `step` jits once, runs inside `lax.scan` and `vmap`s over a fleet. Nodes hold base poses (x, y,
 theta) in the map frame, which is the odometry frame at the first scan.
 

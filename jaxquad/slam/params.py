@@ -184,5 +184,6 @@ def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=
         heading_variance_scale=f(v["wall_heading_variance_scale"]),
         heading_min_std=f(v["wall_heading_min_std"]),
         heading_min_quality=f(v["wall_heading_min_quality"]),
+        heading_max_chi2=f(v["wall_heading_max_chi2"]),
     )
     return spec, params

@@ -75,9 +75,10 @@ OFF_M = 0.3  # an edge whose translation error exceeds this counts as off
 def edge_errors(state, out, gt: np.ndarray) -> dict | None:
     """Each edge kind's error at the true node poses: g2o's edge error (`kernels.posegraph.edge_error`) with
     the nodes at the truth of their scans, so 0 for a perfect measurement. Per kind: `n` edges, the rms of
-    the error's x, y (m) and heading (rad), `chi2_mean` (e^T Omega e averaged; 3 when the information
-    matches the errors, less when it is cautious, more when it is overconfident) and `off` (edges whose
-    translation error exceeds `OFF_M`). `gt` (S, 3) is the truth at every scan; None when a node's scan
+    the error's x, y (m) and heading (rad) over the edges with information on them (NaN for none: a wall-heading
+    prior holds only a heading), `chi2_mean` (e^T Omega e averaged; its degrees of freedom, 3 or 1, when the
+    information matches the errors, less when it is cautious, more when it is overconfident) and `off` (edges
+    whose translation error exceeds `OFF_M`). `gt` (S, 3) is the truth at every scan; None when a node's scan
     has no finite truth."""
     n, m = int(state.n_nodes), int(state.n_edges)
     node_scan = np.flatnonzero(np.asarray(out.added, bool))
@@ -90,13 +91,16 @@ def edge_errors(state, out, gt: np.ndarray) -> dict | None:
     ei, ej = np.asarray(g.edge_i[:m])[keep], np.asarray(g.edge_j[:m])[keep]
     e = np.asarray(jax.vmap(edge_error)(truth[ei], truth[ej], jnp.asarray(g.measurement[:m])[keep]), np.float64)
     # An edge scores only the components it has information on (a wall-heading prior: its heading alone).
-    e = e * (np.diagonal(np.asarray(g.information[:m], np.float64)[keep], axis1=1, axis2=2) > 0)
+    has = np.diagonal(np.asarray(g.information[:m], np.float64)[keep], axis1=1, axis2=2) > 0
+    e = np.where(has, e, 0.0)
     chi2 = np.einsum("ma,mab,mb->m", e, np.asarray(g.information[:m], np.float64)[keep], e)
     rows = {}
     for kind, name in EDGE_KIND_NAMES.items():
         k = kinds == kind
         if k.any():
-            rms = np.sqrt(np.mean(e[k] ** 2, axis=0))
+            count = (has[k]).sum(axis=0)
+            rms = np.sqrt((e[k] ** 2).sum(axis=0) / np.maximum(count, 1))
+            rms = np.where(count > 0, rms, np.nan)
             rows[name] = {
                 "n": int(k.sum()),
                 "rms_x_m": float(rms[0]),
