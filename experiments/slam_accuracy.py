@@ -107,7 +107,7 @@ def _edge_rows(robot: str, world: str, lo: str, reps: list[dict]) -> list[str]:
     """Markdown rows of the edge errors pooled over the robots that have them (rms and chi-square weighted by
     edge counts); `robots` says how many (a robot without truth at every node is not scored)."""
     rows = []
-    for kind in ("match", "odometry", "leg_odometry", "loop"):
+    for kind in ("match", "odometry", "leg_odometry", "loop", "wall_heading"):
         per = [r["edge_errors"][kind] for r in reps if (r.get("edge_errors") or {}).get(kind)]
         if not per:
             continue
