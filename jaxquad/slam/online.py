@@ -5,9 +5,8 @@
     state = finish(spec, params, state)                  # last optimization and map
 
 Everything lives in fixed-capacity arrays (`SlamSpec.nodes` node slots, 3 edge slots per node, 4 with wall-heading
-priors), so
-`step` jits once, runs inside `lax.scan` and `vmap`s over a fleet. Nodes hold base poses (x, y,
-theta) in the map frame, which is the odometry frame at the first scan.
+priors), so `step` jits once, runs inside `lax.scan` and `vmap`s over a fleet. Nodes hold base poses (x, y, theta)
+in the map frame, which is the odometry frame at the first scan.
 
 Per scan (`SlamInputs`): the odometry pose predicts the base pose from the last node. A node is
 added on the first scan of each `min_interval`-long slot of the clock (t // min_interval changes)
