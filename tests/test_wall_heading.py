@@ -160,7 +160,8 @@ def test_online_slam_holds_its_heading_with_wall_priors():
     from jaxquad.slam.report import edge_errors, robot_slice
     from jaxquad.slam.state import EDGE_HEADING
 
-    corners = [(-2.5, -1.8), (2.5, -1.8), (2.5, 1.8), (-2.5, 1.8), (-2.5, -1.8), (2.5, -1.8)]
+    # Node 0 heads +y (pi/2): a prior's measurement is relative to node 0's heading (the edge scores below).
+    corners = [(2.5, -1.8), (2.5, 1.8), (-2.5, 1.8), (-2.5, -1.8), (2.5, -1.8), (2.5, 1.8)]
     truth = []
     for a, b in zip(corners[:-1], corners[1:]):
         d = np.subtract(b, a)
@@ -243,8 +244,9 @@ def test_settings_of_the_slam_file_and_of_exploration(tmp_path):
 def test_node_update_gain_gate_and_edge():
     """`jaxquad.slam.heading.update` with a laser mounted 0.1 rad off the base, node 0 at a non-zero heading and a
     known prior variance: the measured error is the node's heading error; the heading moves by P / (P + R) of it
-    with R from the scan's summed weights; the variance shrinks to (1 - K) P; the edge holds the measured heading
-    relative to node 0, on the heading alone. An error beyond the gate is not used and leaves the pose."""
+    with R from the scan's summed weights; the variance shrinks to (1 - K) P; the prior holds the node at its
+    measured heading, with information on the heading alone. An error beyond the gate is not used and leaves
+    the pose."""
     import equinox as eqx
 
     from jaxquad.slam import SlamParams, SlamSpec, grid_spec
@@ -280,7 +282,7 @@ def test_node_update_gain_gate_and_edge():
             (jnp.asarray(reference, jnp.float32), jnp.asarray(P, jnp.float32), state.graph.poses.at[0].set(x0)),
         )
         pose = np.array([1.0, 2.0, sensor[2] - laser + err])
-        new, var, directions_map, z, info, used, measured = (np.asarray(a, np.float64) for a in run(st, pose, step))
+        new, var, directions_map, at, info, used, measured = (np.asarray(a, np.float64) for a in run(st, pose, step))
         assert bool(used) == expect_used
         if not expect_used:
             # a good match (quality >= 0.5) refused by the gate alone
@@ -295,6 +297,6 @@ def test_node_update_gain_gate_and_edge():
         np.testing.assert_allclose(new[2], pose[2] - K * measured, atol=1e-6)
         np.testing.assert_allclose(new[:2], pose[:2])
         np.testing.assert_allclose(var, (1 - K) * (P + step), rtol=1e-4)
-        np.testing.assert_allclose(z[2], pose[2] - measured - x0[2], atol=1e-6)
+        np.testing.assert_allclose(at, [*pose[:2], pose[2] - measured], atol=1e-6)
         np.testing.assert_allclose(info, np.diag([0.0, 0.0, 1.0 / R]), rtol=1e-4)
         assert np.abs(directions_map - reference).max() > 0  # the scan's directions joined the map's

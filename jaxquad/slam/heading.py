@@ -28,7 +28,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from jaxquad.kernels.lie import se2, wrap_angle, xy_theta
+from jaxquad.kernels.lie import wrap_angle
 from jaxquad.kernels.wall_heading import direction_spectrum, measure_heading, wall_directions
 from jaxquad.slam.state import SlamInputs, SlamParams, SlamSpec, SlamState
 
@@ -44,9 +44,8 @@ def update(
 ):
     """A new node's heading corrected by the walls.
 
-    Returns (pose, heading variance, the map's spectrum with the node's scan added, the prior edge's
-    measurement from node 0 and its information, whether it is used, the measured error (rad, NaN when
-    unused))."""
+    Returns (pose, heading variance, the map's spectrum with the node's scan added, the node at its measured
+    heading and the prior's information, whether it is used, the measured error (rad, NaN when unused))."""
     laser = params.T_base_laser[2]
     direction, weight = wall_directions(spec.heading, params.heading, inp.ranges, state.bearings, inp.valid)
     var = state.heading_var + jnp.where(first, 0.0, step_var)
@@ -62,12 +61,9 @@ def update(
         & jnp.isfinite(var)
     )
     gain = var / (var + R)
-    measured = pose[2] - meas.error
+    measured = pose.at[2].set(wrap_angle(pose[2] - meas.error))
     pose = pose.at[2].set(wrap_angle(pose[2] - jnp.where(used, gain * meas.error, 0.0)))
     var = jnp.where(used, (1.0 - gain) * var, var)
     spectrum = state.directions + direction_spectrum(spec.heading, direction, weight, pose[2] + laser)
-    x0 = state.graph.poses[0]
-    z = xy_theta(se2(x0).inverse() @ se2(pose))
-    z = z.at[2].set(wrap_angle(measured - x0[2]))
     info = jnp.diag(jnp.array([0.0, 0.0, 1.0]) / R)
-    return pose, var, spectrum, z, info, used, jnp.where(used, meas.error, jnp.nan)
+    return pose, var, spectrum, measured, info, used, jnp.where(used, meas.error, jnp.nan)
