@@ -68,6 +68,7 @@ from jaxquad.kernels.wall_heading import (
     HeadingSpec,
     direction_spectrum,
     measure_heading,
+    rotate_spectrum,
     wall_directions,
 )
 
@@ -160,6 +161,7 @@ __all__ = [
     "robust_body_twist",
     "robust_weight",
     "rolling_contact",
+    "rotate_spectrum",
     "sample_free_poses",
     "scan_likelihood",
     "scan_lookup",

@@ -16,7 +16,7 @@ reference scan, so its error does not add up from node to node.
   straight (its second eigenvalue exceeds what the noise explains) or too short.
 - `direction_spectrum`: the weighted directions as the first `harmonics` Fourier coefficients of their
   density over the doubled angle (lines have no sign), rotated into the map frame by a heading; the map's
-  spectrum is the sum of its scans', so it is a fixed-size state.
+  spectrum is the sum of its scans', each turned by its scan's current heading (`rotate_spectrum`).
 - `measure_heading`: the cross-correlation of a scan's spectrum with the map's, smoothed by a Gaussian of
   `kernel_std`, searched over +-`search` around the current heading; the peak (refined by a parabola)
   gives the heading error, and the correlation at the peak over the two spectra's norms (Cauchy-Schwarz:
@@ -117,6 +117,17 @@ def direction_spectrum(
     density in the frame where the sensor has `heading`."""
     a = 2.0 * _harmonics(spec)[None, :] * (direction + heading)[:, None]
     return jnp.stack([weight @ jnp.cos(a), weight @ jnp.sin(a)], -1)
+
+
+def rotate_spectrum(
+    spec: HeadingSpec, spectrum: Float[Array, "*n m 2"], heading: Float[Array, "*n"]
+) -> Float[Array, "*n m 2"]:
+    """A spectrum (`direction_spectrum`) turned by `heading` more: harmonic k's phase advanced by 2 k heading.
+    So a node's spectrum kept in its own frame is put into the map frame by its current heading."""
+    a = 2.0 * _harmonics(spec) * heading[..., None]
+    c, s = jnp.cos(a), jnp.sin(a)
+    re, im = spectrum[..., 0], spectrum[..., 1]
+    return jnp.stack([re * c - im * s, re * s + im * c], -1)
 
 
 def measure_heading(

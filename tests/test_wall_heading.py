@@ -17,6 +17,7 @@ from jaxquad.kernels.wall_heading import (
     HeadingSpec,
     direction_spectrum,
     measure_heading,
+    rotate_spectrum,
     wall_directions,
 )
 
@@ -209,6 +210,21 @@ def test_online_slam_holds_its_heading_with_wall_priors():
     drift = np.rad2deg(0.004 * dt * S)
     assert final[False] > 0.8 * drift and final[True] < 0.3 * drift, (final, drift)
 
+    # The map's spectrum is every node scan's at the node's heading now, also after the nodes move (as a loop
+    # closure's optimization moves them): against each scan's spectrum computed afresh at that heading.
+    from jaxquad.slam.heading import map_spectrum
+
+    one = jax.tree.map(jnp.asarray, robot_slice(state, 0))
+    poses = np.asarray(one.graph.poses)
+    directions, spectrum, _ = _jit()
+    d, w = directions(jnp.asarray(np.where(np.asarray(one.valid[:n]), np.asarray(one.ranges[:n]), 0.0)))
+    for turn in (0.0, 0.07):
+        moved = poses.copy()
+        moved[n // 2 : n, 2] += turn
+        st = eqx.tree_at(lambda s: s.graph.poses, one, jnp.asarray(moved, jnp.float32))
+        want = np.asarray(spectrum(d, w, jnp.asarray(moved[:n, 2], jnp.float32))).sum(0)
+        np.testing.assert_allclose(map_spectrum(spec, st), want, rtol=1e-3, atol=1e-4 * np.abs(want).max())
+
 
 def test_settings_of_the_slam_file_and_of_exploration(tmp_path):
     """slam.yaml's wall_heading is 0 or 1 (one-line error otherwise) and turns the spec's edge slots to 4 per
@@ -250,7 +266,7 @@ def test_node_update_gain_gate_and_edge():
     import equinox as eqx
 
     from jaxquad.slam import SlamParams, SlamSpec, grid_spec
-    from jaxquad.slam.heading import update
+    from jaxquad.slam.heading import map_spectrum, update
     from jaxquad.slam.state import SlamInputs, init
 
     laser = 0.1
@@ -275,14 +291,22 @@ def test_node_update_gain_gate_and_edge():
     R = float(params.heading_variance_scale) / float(np.sum(weight)) + float(params.heading_min_std) ** 2
     run = jax.jit(lambda s, pose, var: update(spec, params, s, pose, var, inp, jnp.asarray(False)))
     directions, spectrum, measure = _jit()
+    # The map's spectrum as node 0's, kept in its frame: map_spectrum turns it by node 0's heading.
+    node0 = rotate_spectrum(SPEC, jnp.asarray(reference, jnp.float32), jnp.asarray(-x0[2], jnp.float32))
+    state = eqx.tree_at(
+        lambda s: (s.node_directions, s.graph.poses, s.graph.node_mask),
+        state,
+        (
+            state.node_directions.at[0].set(node0),
+            state.graph.poses.at[0].set(x0),
+            state.graph.node_mask.at[0].set(True),
+        ),
+    )
+    np.testing.assert_allclose(map_spectrum(spec, state), reference, rtol=1e-4, atol=1e-3 * np.abs(reference).max())
     for err, P, step, expect_used in ((np.deg2rad(3.0), 4e-4, 1e-5, True), (np.deg2rad(6.0), 1e-8, 0.0, False)):
-        st = eqx.tree_at(
-            lambda s: (s.directions, s.heading_var, s.graph.poses),
-            state,
-            (jnp.asarray(reference, jnp.float32), jnp.asarray(P, jnp.float32), state.graph.poses.at[0].set(x0)),
-        )
+        st = eqx.tree_at(lambda s: s.heading_var, state, jnp.asarray(P, jnp.float32))
         pose = np.array([1.0, 2.0, sensor[2] - laser + err])
-        new, var, directions_map, at, info, used, measured = (np.asarray(a, np.float64) for a in run(st, pose, step))
+        new, var, local, at, info, used, measured = (np.asarray(a, np.float64) for a in run(st, pose, step))
         assert bool(used) == expect_used
         if not expect_used:
             # a good match (quality >= 0.5) refused by the gate alone
@@ -299,4 +323,7 @@ def test_node_update_gain_gate_and_edge():
         np.testing.assert_allclose(var, (1 - K) * (P + step), rtol=1e-4)
         np.testing.assert_allclose(at, [*pose[:2], pose[2] - measured], atol=1e-6)
         np.testing.assert_allclose(info, np.diag([0.0, 0.0, 1.0 / R]), rtol=1e-4)
-        assert np.abs(directions_map - reference).max() > 0  # the scan's directions joined the map's
+        # The node keeps its scan's spectrum in the base frame: the sensor frame's turned by the laser's yaw.
+        d, w = directions(jnp.asarray(ranges[None]))
+        base = np.asarray(spectrum(d, w, jnp.asarray([laser], jnp.float32))[0])
+        np.testing.assert_allclose(local, base, rtol=1e-4, atol=1e-4 * np.abs(base).max())

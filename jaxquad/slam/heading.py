@@ -3,8 +3,8 @@
 The graph's heading otherwise drifts with the leg odometry's (the IMU's yaw, a random walk) between loop
 closures, and in a hall of long aisles closures are few. Each new node's scan is measured against the
 map's wall directions (`kernels.wall_heading`): the map's direction spectrum is the sum of the node scans'
-spectra, each rotated by its node's heading when it was added (later optimizations move the nodes, not the
-spectrum: their corrections, about a degree, are within its 1 deg smoothing). A measurement is used when its
+spectra, each kept in its node's frame and turned by the node's current heading (`map_spectrum`), so loop
+closures that move the nodes move their directions with them. A measurement is used when its
 quality reaches `heading_min_quality` and it agrees with the node's heading variance: error^2 / (P + R) at most
 `heading_max_chi2`.
 
@@ -29,8 +29,15 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from jaxquad.kernels.lie import wrap_angle
-from jaxquad.kernels.wall_heading import direction_spectrum, measure_heading, wall_directions
+from jaxquad.kernels.wall_heading import direction_spectrum, measure_heading, rotate_spectrum, wall_directions
 from jaxquad.slam.state import SlamInputs, SlamParams, SlamSpec, SlamState
+
+
+def map_spectrum(spec: SlamSpec, state: SlamState) -> Float[Array, "k 2"]:
+    """The map's wall-direction spectrum: every node's, turned by its heading now."""
+    g = state.graph
+    turned = rotate_spectrum(spec.heading, state.node_directions, g.poses[:, 2])
+    return jnp.sum(jnp.where(g.node_mask[:, None, None], turned, 0.0), axis=0)
 
 
 def update(
@@ -44,13 +51,15 @@ def update(
 ):
     """A new node's heading corrected by the walls.
 
-    Returns (pose, heading variance, the map's spectrum with the node's scan added, the node at its measured
-    heading and the prior's information, whether it is used, the measured error (rad, NaN when unused))."""
+    Returns (pose, heading variance, the scan's spectrum in the base frame (the node's `node_directions`), the
+    node at its measured heading and the prior's information, whether it is used, the measured error (rad, NaN
+    when unused))."""
     laser = params.T_base_laser[2]
     direction, weight = wall_directions(spec.heading, params.heading, inp.ranges, state.bearings, inp.valid)
     var = state.heading_var + jnp.where(first, 0.0, step_var)
-    scan = direction_spectrum(spec.heading, direction, weight, pose[2] + laser)
-    meas = measure_heading(spec.heading, params.heading, scan, state.directions)
+    local = direction_spectrum(spec.heading, direction, weight, laser)
+    scan = rotate_spectrum(spec.heading, local, pose[2])
+    meas = measure_heading(spec.heading, params.heading, scan, map_spectrum(spec, state))
     R = params.heading_variance_scale / jnp.maximum(jnp.sum(weight), 1e-9) + params.heading_min_std**2
     chi2 = meas.error**2 / (var + R)
     used = (
@@ -64,6 +73,5 @@ def update(
     measured = pose.at[2].set(wrap_angle(pose[2] - meas.error))
     pose = pose.at[2].set(wrap_angle(pose[2] - jnp.where(used, gain * meas.error, 0.0)))
     var = jnp.where(used, (1.0 - gain) * var, var)
-    spectrum = state.directions + direction_spectrum(spec.heading, direction, weight, pose[2] + laser)
     info = jnp.diag(jnp.array([0.0, 0.0, 1.0]) / R)
-    return pose, var, spectrum, measured, info, used, jnp.where(used, meas.error, jnp.nan)
+    return pose, var, local, measured, info, used, jnp.where(used, meas.error, jnp.nan)

@@ -203,14 +203,14 @@ def _add_node(spec: SlamSpec, params: SlamParams, state: SlamState, pred, inp: S
     cov_step = jnp.where(first, 0.0, jnp.linalg.inv(info_step))
     heading_error = jnp.asarray(jnp.nan)
     if spec.wall_heading:
-        pose, var, spectrum, measured, info_h, h_used, heading_error = wall_heading.update(
+        pose, var, local, measured, info_h, h_used, heading_error = wall_heading.update(
             spec, params, state, pose, cov_step[2, 2], inp, first
         )
         z_h = _between(state.graph.poses[0], measured)  # the prior's information is on its heading alone
         state = eqx.tree_at(
-            lambda s: (s.heading_var, s.directions, s.headings),
+            lambda s: (s.heading_var, s.node_directions, s.headings),
             state,
-            (var, spectrum, state.headings + h_used.astype(state.headings.dtype)),
+            (var, state.node_directions.at[j].set(local), state.headings + h_used.astype(state.headings.dtype)),
         )
 
     g = state.graph

@@ -107,7 +107,8 @@ class SlamState(eqx.Module):
     map_stale: Bool[Array, ""]  # poses moved since the map was drawn
     loops: Int[Array, ""]  # accepted loop closures
     full: Bool[Array, ""]  # node capacity reached: later scans add no node
-    directions: Float[Array, "k 2"]  # the map's wall-direction spectrum (kernels.wall_heading)
+    node_directions: Float[Array, "n_h k 2"]  # each node scan's wall-direction spectrum in its base frame
+    # (kernels.wall_heading; n_h = n with SlamSpec.wall_heading, else 0)
     heading_var: Float[Array, ""]  # rad^2: variance of the last node's heading in the map frame
     headings: Int[Array, ""]  # accepted wall-heading priors
 
@@ -160,7 +161,7 @@ def init(spec: SlamSpec, params: SlamParams, bearings: Float[Array, " b"]) -> Sl
         map_stale=jnp.asarray(False),
         loops=zero_i,
         full=jnp.asarray(False),
-        directions=jnp.zeros((spec.heading.harmonics, 2)),
+        node_directions=jnp.zeros((n if spec.wall_heading else 0, spec.heading.harmonics, 2)),
         heading_var=zero_f,
         headings=zero_i,
     )
