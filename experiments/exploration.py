@@ -48,8 +48,9 @@ def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     slam = load_params(args.slam_params) if args.slam_params else None  # the values: an edited file is another cell
     settings = {"robot": robot, "world": world, "variant": variant, "traces": args.traces, "slam_params": slam}
     settings |= {k: getattr(args, k) for k in keep}
-    if variant != "full":  # the baseline's SLAM never takes wall-heading priors
-        settings["wall_heading"] = "off"
+    settings["low_obstacles"] = args.low_obstacles == "on"  # rows kept before "on"/"off" hold a bool
+    if variant != "full":  # the baseline never takes wall-heading priors or marks low obstacles
+        settings |= {"wall_heading": "off", "low_obstacles": False}
     return settings
 
 
@@ -100,7 +101,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         wall_heading=args.wall_heading == "on",
         revisit_after=args.revisit_after,
         footprint_padding=args.footprint_padding,
-        low_obstacles=args.low_obstacles,
+        low_obstacles=args.low_obstacles == "on",
         trace_robots=args.runs if args.traces else 4,
         devices=args.devices,
     )

@@ -228,7 +228,8 @@ def test_online_slam_holds_its_heading_with_wall_priors():
 
 def test_settings_of_the_slam_file_and_of_exploration(tmp_path):
     """slam.yaml's wall_heading is 0 or 1 (one-line error otherwise) and turns the spec's edge slots to 4 per
-    node; exploration gives it to the full variant's SLAM unless --wall-heading off, never to the baseline's."""
+    node; exploration gives it to the full variant's SLAM unless --wall-heading off, never to the baseline's, and
+    marks obstacles under the scan plane in the full variant's costmap unless --low-obstacles off."""
     import argparse
 
     import pytest
@@ -255,6 +256,15 @@ def test_settings_of_the_slam_file_and_of_exploration(tmp_path):
     add_loop_arguments(parser)
     assert parser.parse_args([]).wall_heading == "on"
     assert parser.parse_args(["--wall-heading", "off"]).wall_heading == "off"
+    # The obstacles under the scan plane likewise: on for the full variant unless turned off, never for the baseline.
+    assert [parser.parse_args(a).low_obstacles for a in ([], ["--low-obstacles"], ["--low-obstacles", "off"])] == [
+        "on",
+        "on",
+        "off",
+    ]
+    assert ExploreConfig().loop_config().low_obstacles
+    assert not ExploreConfig(low_obstacles=False).loop_config().low_obstacles
+    assert not ExploreConfig(variant="baseline").loop_config().low_obstacles
 
 
 def test_node_update_gain_gate_and_edge():

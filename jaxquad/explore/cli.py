@@ -49,9 +49,13 @@ def add_loop_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--low-obstacles",
-        action="store_true",
-        help="keep the robot off obstacles lower than the camera's scan plane, seen in the depth image's points "
-        "below it (default: off, the costmap is the SLAM map's alone)",
+        choices=("on", "off"),
+        nargs="?",
+        const="on",
+        default="on" if c.low_obstacles else "off",
+        help="the full variant keeps the robot off obstacles lower than the camera's scan plane, seen in the depth "
+        "image's points below it; off: the costmap is the SLAM map's alone (default "
+        f"{'on' if c.low_obstacles else 'off'}; the baseline variant: never)",
     )
     parser.add_argument(
         "--footprint-padding",
@@ -185,7 +189,7 @@ def run(args: argparse.Namespace) -> int:
         map_miss_probability=args.map_miss_probability,
         wall_heading=args.wall_heading == "on",
         revisit_after=args.revisit_after,
-        low_obstacles=args.low_obstacles,
+        low_obstacles=args.low_obstacles == "on",
         footprint_padding=args.footprint_padding,
         band_height=args.band_height,
         band_reduce=args.band_reduce,
