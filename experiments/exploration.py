@@ -9,7 +9,8 @@ uncertain, occupied; and how many lie on boxes' faces), outcome counts (explored
 speed. It prints the rows as JSON (`--json` also writes them) and a Markdown table, and draws
 `coverage_vs_time.png` in `--figures` (mean and 10-90 % band per variant; a panel per robot and world).
 `--traces DIR` also keeps every run's path and writes `<robot>_<world>_<variant>.npz` per cell (times,
-SLAM position error, true and SLAM poses, goals, control modes, outcomes, loop closures, the final maps beside the
+SLAM position error, true and SLAM poses, goals, control modes, outcomes, loop closures, every loop candidate of
+every tick with its chi-square and what an accepted one did to the error, the final maps beside the
 true map with its reachable and clear cells; `--trace-every S` keeps one sample of the time series every S s,
 so that long cells' traces stay small): `experiments/exploration_errors.py`
 draws the SLAM's error over time from it. Runs longer than one sitting: with `--checkpoint DIR --wall-budget S`
@@ -163,10 +164,28 @@ def trace_ticks(t: np.ndarray, every_s: float) -> np.ndarray:
     return idx if idx.size and idx[-1] == len(t) - 1 else np.append(idx, len(t) - 1).astype(idx.dtype)
 
 
+def loop_events(result) -> dict:
+    """Every loop candidate that passed the SLAM's match tests, at each tick (whatever the traces keep): `loop_t`
+    (s), `loop_run`, `loop_chi2` (its consistency chi-square), `loop_accepted`, and the run's SLAM position error
+    on the tick before and on the tick itself (`loop_error_before_m`, `loop_error_after_m`): what an accepted
+    closure did to the pose."""
+    chi2 = np.asarray(result.loop_chi2)
+    k, run = np.nonzero(np.isfinite(chi2))
+    err = np.asarray(result.error)
+    return {
+        "loop_t": np.asarray(result.t)[k],
+        "loop_run": run.astype(np.int32),
+        "loop_chi2": chi2[k, run],
+        "loop_accepted": np.asarray(result.loop_closed)[k, run].astype(bool),
+        "loop_error_before_m": np.where(k > 0, err[np.maximum(k - 1, 0), run], np.nan),
+        "loop_error_after_m": err[k, run],
+    }
+
+
 def save_traces(path: Path, result, every_s: float = 0.0) -> None:
     """Every run's traces of one cell (arrays of `ExploreResult`, the time series at `trace_ticks(t, every_s)`, the
-    final maps with the true map, its reachable and clear cells, origin and resolution; the cell's settings as 0-d
-    strings and numbers)."""
+    loop candidates of every tick (`loop_events`), the final maps with the true map, its reachable and clear cells,
+    origin and resolution; the cell's settings as 0-d strings and numbers)."""
     from jaxquad.io.atomic import atomic_open
 
     cfg = result.config
@@ -174,6 +193,7 @@ def save_traces(path: Path, result, every_s: float = 0.0) -> None:
     arrays = {k: np.asarray(getattr(result, k))[ticks] for k in SERIES}
     keep = ("outcome", "end_t", "distance", "nodes", "loops", "revisits", "revisits_closed", "starts")
     arrays |= {k: np.asarray(getattr(result, k)) for k in keep}
+    arrays |= loop_events(result)
     arrays |= {"maps": result.maps, "reachable": result.reachable, "clear": result.clear, "true_map": result.truth.grid}
     arrays |= {"map_origin": np.asarray(result.truth.origin), "map_resolution": result.truth.resolution}
     arrays |= {"robot": cfg.robot, "world": cfg.world}

@@ -11,10 +11,12 @@ heading panel adds the median absolute value of the reported yaw's random walk (
 `yaw_walk`: 0.6745 x yaw_walk x sqrt(t)), which the leg odometry's heading follows. It prints, as JSON,
 the medians at each whole minute and per lost run its end time, its largest change of error from one sample to
 the next (`sample_s` apart: a control tick, or `exploration.py --trace-every`'s period) and its final heading
-error; with the final maps in the traces (`exploration.py --traces` keeps them since
-`6a3bdcf`), their scores against the true map per outcome (`jaxquad.metrics.map_scores`: IoU median and 10-90 %,
-precision and recall medians) and, over the runs that ended `explored`, the correlation of the map IoU with the
-run's median SLAM position error.
+error; with the loop candidates in the traces (`exploration.py`'s `loop_events`), per lost run the accepted closure
+that changed its SLAM error most, and `loops`: how many candidates were accepted and refused, and the accepted ones
+that moved a run's error by more than `JUMP_M` (their count, runs, and chi-squares); with the final maps in the
+traces (`exploration.py --traces` keeps them since `6a3bdcf`), their scores against the true map per outcome
+(`jaxquad.metrics.map_scores`: IoU median and 10-90 %, precision and recall medians) and, over the runs that ended
+`explored`, the correlation of the map IoU with the run's median SLAM position error.
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
+
+JUMP_M = 0.3  # m: an accepted closure that moves the SLAM position error by more than this
 
 
 def heading_error_deg(d: dict) -> np.ndarray:
@@ -101,8 +105,44 @@ def summarize(d: dict, yaw_walk: float) -> dict:
             "largest_tick_change_m": float(np.max(np.abs(np.diff(err[: k + 1, i])), initial=0.0)),
             "final_heading_error_deg": float(heading[k, i]),
         })  # fmt: skip
-    return {"runs": int(err.shape[1]), "lost": len(runs), "randomized_noise": randomize, "sample_s": tick,
+        if "loop_chi2" in d:
+            runs[-1]["largest_closure"] = _largest_closure(d, i)
+    loops = {"loops": loop_summary(d)} if "loop_chi2" in d else {}
+    return loops | {"runs": int(err.shape[1]), "lost": len(runs), "randomized_noise": randomize, "sample_s": tick,
             "per_minute": minutes, "lost_runs": runs}  # fmt: skip
+
+
+def _closure_change(d: dict) -> np.ndarray:
+    """Per loop candidate, the change of its run's SLAM position error across its tick (m)."""
+    return d["loop_error_after_m"] - d["loop_error_before_m"]
+
+
+def _largest_closure(d: dict, run: int) -> dict | None:
+    """The run's accepted closure that changed its SLAM position error most (None without one)."""
+    k = np.flatnonzero((d["loop_run"] == run) & d["loop_accepted"].astype(bool))
+    if not k.size:
+        return None
+    k = k[np.argmax(np.abs(np.nan_to_num(_closure_change(d)[k])))]
+    keys = ("t_s", "chi2", "error_before_m", "error_after_m")
+    values = (d["loop_t"][k], d["loop_chi2"][k], d["loop_error_before_m"][k], d["loop_error_after_m"][k])
+    return {key: float(v) for key, v in zip(keys, values)}
+
+
+def loop_summary(d: dict) -> dict:
+    """The loop candidates (past the match tests) accepted and refused by the consistency test, and the accepted
+    ones that moved their run's SLAM position error by more than `JUMP_M`: count, runs, chi-square median and
+    range."""
+    accepted = d["loop_accepted"].astype(bool)
+    jump = accepted & (np.abs(np.nan_to_num(_closure_change(d))) > JUMP_M)
+    chi2 = d["loop_chi2"][jump]
+    return {
+        "accepted": int(accepted.sum()),
+        "refused": int((~accepted).sum()),
+        "jumps": int(jump.sum()),
+        "jump_runs": sorted({int(r) for r in d["loop_run"][jump]}),
+        "jump_chi2": _percentiles(chi2, [0, 50, 100]),
+        "accepted_chi2": _percentiles(d["loop_chi2"][accepted & ~jump], [50, 90]),
+    }
 
 
 def _percentiles(x: np.ndarray, q: list[float]) -> list[float | None]:

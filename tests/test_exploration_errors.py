@@ -1,5 +1,5 @@
 """experiments/exploration_errors.py on traces written by experiments/exploration.py --traces: the summary
-against values built into synthetic traces, and the file round trip."""
+against values built into synthetic traces (loop candidates included), and the file round trip."""
 
 import importlib.util
 from pathlib import Path
@@ -78,6 +78,7 @@ def test_traces_round_trip_and_bad_files(tmp_path):
     extra = dict(coverage=d["error"], distance=np.ones(3), nodes=np.ones(3), loops=np.zeros(3), starts=np.zeros((3, 3)))
     extra |= dict(goal=d["pose"] + 1.0, mode=np.full(d["error"].shape, 5, np.int8))
     extra |= dict(revisits=np.array([0, 2, 1]), revisits_closed=np.array([0, 1, 1]), revisiting=d["error"] > 0.2)
+    extra |= dict(loop_closed=np.zeros(d["error"].shape, bool), loop_chi2=np.full(d["error"].shape, np.nan))
     maps = np.random.default_rng(1).integers(-1, 101, (3, 4, 5)).astype(np.int8)
     truth = SimpleNamespace(grid=maps[0], origin=(-1.0, -2.0, 0.0), resolution=0.05)
     extra |= dict(maps=maps, reachable=maps[1] < 20, clear=maps[2] < 20, truth=truth)
@@ -157,6 +158,7 @@ def test_thinned_traces_keep_the_series_at_the_kept_ticks_and_every_map(tmp_path
     config = SimpleNamespace(robot="go2", world="house", variant="full", seed=3, randomize=True)
     extra = dict(coverage=d["error"] / 10, distance=np.ones(3), nodes=np.ones(3), loops=np.zeros(3))
     extra |= dict(revisits=np.zeros(3, int), revisits_closed=np.zeros(3, int), revisiting=d["error"] < 0)
+    extra |= dict(loop_closed=np.zeros(d["error"].shape, bool), loop_chi2=np.full(d["error"].shape, np.nan))
     extra |= dict(starts=np.zeros((3, 3)), goal=d["pose"] + 1.0, mode=np.full(d["error"].shape, 2, np.int8))
     maps = np.random.default_rng(2).integers(-1, 101, (3, 4, 5)).astype(np.int8)
     truth = SimpleNamespace(grid=maps[0], origin=(0.0, 0.0, 0.0), resolution=0.05)
@@ -175,3 +177,43 @@ def test_thinned_traces_keep_the_series_at_the_kept_ticks_and_every_map(tmp_path
     (run,) = s["lost_runs"]  # run 1's last active tick, 800, is no kept one: its last kept sample is tick 799
     assert run["run"] == 1 and run["final_heading_error_deg"] == pytest.approx(np.degrees(0.04), abs=1e-3)
     assert s["per_minute"][0]["t_s"] <= 60.0 and s["per_minute"][0]["active_runs"] == 3
+
+
+def test_loop_candidates_kept_at_every_tick_and_the_closures_that_jumped(tmp_path):
+    """Loop candidates on ticks that thinned traces drop: each kept with its error before and after; a lost run's
+    largest closure and the closures that moved an error by more than 0.3 m found among them."""
+    d = _traces()
+    d["error"][700:801, 1] += 0.5  # run 1's closure at tick 700 moves its error by 0.502 m
+    chi2 = np.full(d["error"].shape, np.nan)
+    closed = np.zeros(d["error"].shape, bool)
+    for tick, run, value, accepted in ((100, 0, 2.0, True), (500, 1, 9.0, True), (700, 1, 12.0, True),
+                                       (300, 2, 40.0, False)):  # fmt: skip
+        chi2[tick, run], closed[tick, run] = value, accepted
+    config = SimpleNamespace(robot="go2", world="warehouse", variant="full", seed=0, randomize=True)
+    extra = dict(coverage=d["error"] / 10, distance=np.ones(3), nodes=np.ones(3), loops=np.array([1, 2, 0]))
+    extra |= dict(revisits=np.zeros(3, int), revisits_closed=np.zeros(3, int), revisiting=d["error"] < 0)
+    extra |= dict(starts=np.zeros((3, 3)), goal=d["pose"], mode=np.zeros(d["error"].shape, np.int8))
+    maps = np.zeros((3, 4, 5), np.int8)
+    truth = SimpleNamespace(grid=maps[0], origin=(0.0, 0.0, 0.0), resolution=0.05)
+    extra |= dict(maps=maps, reachable=maps[1] < 20, clear=maps[2] < 20, truth=truth)
+    extra |= dict(loop_chi2=chi2, loop_closed=closed)
+    exploration.save_traces(tmp_path / "cell.npz", SimpleNamespace(config=config, **d, **extra), every_s=0.96)
+    back = errors.load(tmp_path / "cell.npz")
+    assert back["t"].size < 200  # thinned: ticks 100, 300, 500 and 700 are not among the kept ones
+    order = np.argsort(back["loop_t"])
+    np.testing.assert_array_equal(back["loop_run"][order], [0, 2, 1, 1])
+    np.testing.assert_array_equal(back["loop_chi2"][order], [2.0, 40.0, 9.0, 12.0])
+    np.testing.assert_array_equal(back["loop_accepted"][order], [True, False, True, True])
+    np.testing.assert_allclose(back["loop_t"][order], T[[100, 300, 500, 700]], rtol=1e-6)
+    np.testing.assert_allclose(back["loop_error_before_m"][order], d["error"][[99, 299, 499, 699], [0, 2, 1, 1]])
+    np.testing.assert_allclose(back["loop_error_after_m"][order], d["error"][[100, 300, 500, 700], [0, 2, 1, 1]])
+
+    s = errors.summarize(back, yaw_walk=np.deg2rad(0.2))
+    loops = s["loops"]
+    assert (loops["accepted"], loops["refused"], loops["jumps"], loops["jump_runs"]) == (3, 1, 1, [1])
+    assert loops["jump_chi2"] == [12.0, 12.0, 12.0]
+    assert loops["accepted_chi2"] == pytest.approx([5.5, 8.3])  # the median and 90th percentile of 2 and 9
+    (run,) = s["lost_runs"]
+    big = run["largest_closure"]  # of run 1's two closures, the one that moved its error by 0.502 m
+    assert big["chi2"] == 12.0 and big["t_s"] == pytest.approx(T[700], rel=1e-6)
+    assert big["error_after_m"] - big["error_before_m"] == pytest.approx(0.502, abs=1e-5)

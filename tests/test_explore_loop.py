@@ -316,6 +316,12 @@ def test_revisits_drive_back_to_where_the_robot_was(run, monkeypatch):
         assert gap[1] < gap[0] or gap[1] < 0.5
     per_robot = summarize(again, 6.0)["per_robot"][0]
     assert per_robot["revisit_s"] == pytest.approx(on.sum() * 0.096, rel=1e-4)
+    # Every accepted loop closure shows on its tick (none in 48 s here): the per-tick flags add up to the SLAM's own
+    # count, and each flagged tick holds its candidate's chi-square, within the consistency test's bound.
+    closed = again.loop_closed[:, 0]
+    assert closed.sum() == again.loops[0]
+    assert np.all(again.loop_chi2[closed, 0] <= 16.27) and np.isfinite(again.loop_chi2[:, 0]).sum() >= closed.sum()
+    assert not again.loop_closed[~again.active[:, 0], 0].any()
 
 
 def _rectangle_distance(center, half, yaw, xy):

@@ -155,6 +155,8 @@ class ExploreResult:
     error: np.ndarray  # (T, N) m, SLAM position error
     active: np.ndarray  # (T, N)
     revisiting: np.ndarray  # (T, N) the goal was a revisit
+    loop_closed: np.ndarray  # (T, N) the SLAM accepted a loop closure on the tick
+    loop_chi2: np.ndarray  # (T, N) consistency chi-square of a loop candidate past the match tests (NaN: none)
     true_pose: np.ndarray  # (T, n_trace, 3)
     pose: np.ndarray  # (T, n_trace, 3) SLAM pose
     goal: np.ndarray  # (T, n_trace, 3) the frontier goal, x y yaw
@@ -364,6 +366,8 @@ def explore(
         error=trace.error[:, :n],
         active=trace.active[:, :n],
         revisiting=trace.revisiting[:, :n],
+        loop_closed=trace.loop_closed[:, :n],
+        loop_chi2=trace.loop_chi2[:, :n],
         true_pose=trace.true_pose,
         pose=trace.pose,
         goal=trace.goal,

@@ -149,6 +149,8 @@ class ExploreOutput(eqx.Module):
     revisiting: Bool[Array, "*B"]  # the goal is a revisit (`jaxquad.nav.revisit`)
     mode: Int[Array, "*B"]  # MODES code: what commanded the robot on the tick
     active: Bool[Array, "*B"]  # the run had not ended at the start of the tick
+    loop_closed: Bool[Array, "*B"]  # the SLAM accepted a loop closure on the tick
+    loop_chi2: Float[Array, "*B"]  # its candidate's consistency chi-square (`slam.SlamOutput.loop_chi2`; NaN: none)
 
 
 class ExploreFunctions(NamedTuple):
@@ -306,6 +308,7 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
         # A finished run keeps its map: the SLAM sees nothing more.
         scan = body.scan(params.body, b.est, depth[-1])
         slam_state, out = slam_step(params, s.slam, b, scan, odom[-1], active)
+        loop_closed, loop_chi2 = active & out.loop_closed, jnp.where(active, out.loop_chi2, jnp.nan)
         pose = jnp.where(active, out.pose, s.pose)
         low = mark_low(params, s.low, s.grid, b, depth[-1], scan, pose, active) if config.low_obstacles else s.low
         s = dataclasses.replace(s, body=b, slam=slam_state, pose=pose, low=low)
@@ -372,6 +375,8 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
             revisiting=rv.active,
             mode=mode.astype(jnp.int8),
             active=active,
+            loop_closed=loop_closed,
+            loop_chi2=loop_chi2,
         )
 
     return ExploreFunctions(init=init, tick=tick)
