@@ -45,7 +45,7 @@ def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     from jaxquad.slam import load_params
 
     keep = ("runs", "seconds", "seed", "samples", "horizon", "every", "band_height", "band_reduce")
-    keep += ("map_miss_probability", "revisit_after", "footprint_padding", "low_obstacles", "wall_heading")
+    keep += ("map_miss_probability", "revisit_after", "footprint_padding", "wall_heading")
     slam = load_params(args.slam_params) if args.slam_params else None  # the values: an edited file is another cell
     settings = {"robot": robot, "world": world, "variant": variant, "traces": args.traces, "slam_params": slam}
     settings |= {k: getattr(args, k) for k in keep}
