@@ -271,8 +271,8 @@ def test_node_update_gain_gate_and_edge():
     """`jaxquad.slam.heading.update` with a laser mounted 0.1 rad off the base, node 0 at a non-zero heading and a
     known prior variance: the measured error is the node's heading error; the heading moves by P / (P + R) of it
     with R from the scan's summed weights; the variance shrinks to (1 - K) P; the prior holds the node at its
-    measured heading, with information on the heading alone. An error beyond the gate is not used and leaves
-    the pose."""
+    measured heading, with information on the heading alone. An error beyond the gate (on P and the minimum std,
+    not R) is not used and leaves the pose; with `heading_gate_with_r` a wide R lets that same error through."""
     import equinox as eqx
 
     from jaxquad.slam import SlamParams, SlamSpec, grid_spec
@@ -299,6 +299,7 @@ def test_node_update_gain_gate_and_edge():
     )
     _, weight = wall_directions(SPEC, PARAMS, jnp.asarray(ranges), jnp.asarray(BEARINGS, jnp.float32), inp.valid)
     R = float(params.heading_variance_scale) / float(np.sum(weight)) + float(params.heading_min_std) ** 2
+    R_wide = np.deg2rad(3.0) ** 2 * float(np.sum(weight))  # a variance scale for an R of (3 deg)^2
     run = jax.jit(lambda s, pose, var: update(spec, params, s, pose, var, inp, jnp.asarray(False)))
     directions, spectrum, measure = _jit()
     # The map's spectrum as node 0's, kept in its frame: map_spectrum turns it by node 0's heading.
@@ -313,7 +314,19 @@ def test_node_update_gain_gate_and_edge():
         ),
     )
     np.testing.assert_allclose(map_spectrum(spec, state), reference, rtol=1e-4, atol=1e-3 * np.abs(reference).max())
-    for err, P, step, expect_used in ((np.deg2rad(3.0), 4e-4, 1e-5, True), (np.deg2rad(6.0), 1e-8, 0.0, False)):
+    # The third case: a gate on P alone refuses 4 deg at P = (1 deg)^2; R as wide as 3 deg std would admit it.
+    wide = eqx.tree_at(
+        lambda p: (p.heading_variance_scale, p.heading_gate_with_r),
+        params,
+        (jnp.asarray(R_wide, jnp.float32), jnp.asarray(True)),
+    )
+    P1 = np.deg2rad(1.0) ** 2
+    cases = (
+        (np.deg2rad(3.0), 4e-4, 1e-5, True),
+        (np.deg2rad(6.0), 1e-8, 0.0, False),
+        (np.deg2rad(4.0), P1, 0.0, False),
+    )
+    for err, P, step, expect_used in cases:
         st = eqx.tree_at(lambda s: s.heading_var, state, jnp.asarray(P, jnp.float32))
         pose = np.array([1.0, 2.0, sensor[2] - laser + err])
         new, var, local, at, info, used, measured = (np.asarray(a, np.float64) for a in run(st, pose, step))
@@ -322,9 +335,23 @@ def test_node_update_gain_gate_and_edge():
             # a good match (quality >= 0.5) refused by the gate alone
             d, w = directions(jnp.asarray(ranges[None]))
             meas = measure(spectrum(d, w, jnp.asarray([pose[2] + laser], jnp.float32))[0], jnp.asarray(reference))
-            assert float(meas.quality) >= 0.5 and float(meas.error) ** 2 / (P + step + R) > 10.83
+            min_var = float(params.heading_min_std) ** 2
+            assert float(meas.quality) >= 0.5 and float(meas.error) ** 2 / (P + step + min_var) > 10.83
             np.testing.assert_allclose(new, pose, atol=1e-6)
-            assert np.isnan(measured) and abs(var - (P + step)) < 1e-12
+            assert np.isnan(measured) and abs(var - (P + step)) <= 1e-6 * (P + step) + 1e-12
+            if P == P1:  # the measurement's own variance, counted, would have let it through
+                assert float(meas.error) ** 2 / (P + float(wide.heading_variance_scale) / float(np.sum(weight))) < 10.83
+                assert bool(
+                    update(
+                        spec,
+                        wide,
+                        st,
+                        jnp.asarray(pose, jnp.float32),
+                        jnp.asarray(step, jnp.float32),
+                        inp,
+                        jnp.asarray(False),
+                    )[5]
+                )
             continue
         assert abs(measured - err) < np.deg2rad(0.15)
         K = (P + step) / (P + step + R)

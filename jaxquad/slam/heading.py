@@ -1,12 +1,15 @@
 """Wall-direction heading priors for the online SLAM (`SlamSpec.wall_heading`), one new node at a time.
 
-The graph's heading otherwise drifts with the leg odometry's (the IMU's yaw, a random walk) between loop
-closures, and in a hall of long aisles closures are few. Each new node's scan is measured against the
-map's wall directions (`kernels.wall_heading`): the map's direction spectrum is the sum of the node scans'
-spectra, each kept in its node's frame and turned by the node's current heading (`map_spectrum`), so loop
-closures that move the nodes move their directions with them. A measurement is used when its
-quality reaches `heading_min_quality` and it agrees with the node's heading variance: error^2 / (P + R) at most
-`heading_max_chi2`.
+The graph's heading otherwise drifts with the leg odometry's (the IMU's yaw, a random walk) between loop closures,
+and in a hall of long aisles closures are few. Each new node's scan is measured against the map's wall directions
+(`kernels.wall_heading`): the map's direction spectrum is the sum of the node scans' spectra, each kept in its
+node's frame and turned by the node's current heading (`map_spectrum`), so loop closures that move the nodes move
+their directions with them. A measurement is used when its quality reaches `heading_min_quality` and it agrees with
+the node's heading as known: error^2 / (P + `heading_min_std`^2) at most `heading_max_chi2`. R is left out of that
+test (`heading_gate_with_r` puts it back): a measurement's large errors are wrong associations, not noise. A box
+turned a few degrees off the walls, seen where the map has no direction of its own, is lined up with the nearest
+mapped wall direction; a scan with few straight returns claims a wide R, and with R in the test such a match, 5-10
+deg off, passed and turned the heading (`experiments/heading_replay.py` compares the two tests).
 
 R, the measurement's variance, is `heading_variance_scale` over the scan's summed direction weights (its
 walls' information) plus `heading_min_std`^2. The returns' fits overlap and the walls' faces are not ideal
@@ -61,7 +64,7 @@ def update(
     scan = rotate_spectrum(spec.heading, local, pose[2])
     meas = measure_heading(spec.heading, params.heading, scan, map_spectrum(spec, state))
     R = params.heading_variance_scale / jnp.maximum(jnp.sum(weight), 1e-9) + params.heading_min_std**2
-    chi2 = meas.error**2 / (var + R)
+    chi2 = meas.error**2 / (var + jnp.where(params.heading_gate_with_r, R, params.heading_min_std**2))
     used = (
         ~first
         & (meas.quality >= params.heading_min_quality)

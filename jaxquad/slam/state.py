@@ -70,6 +70,7 @@ class SlamParams(eqx.Module):
     heading_min_std: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.0087))  # rad
     heading_min_quality: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.5))  # correlation quality, 0-1
     heading_max_chi2: Float[Array, ""] = eqx.field(default_factory=lambda: _f(10.83))  # chi-square, 1 dof
+    heading_gate_with_r: Bool[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(False))  # R in the gate too
 
 
 class SlamInputs(eqx.Module):
