@@ -8,7 +8,7 @@ their directions with them. A measurement is used when its quality reaches `head
 the node's heading as known: error^2 / (P + `heading_min_std`^2) at most `heading_max_chi2`. R is left out of that
 test (`heading_gate_with_r` puts it back): a measurement's large errors are wrong associations, not noise. A box
 turned a few degrees off the walls, seen where the map has no direction of its own, is lined up with the nearest
-mapped wall direction; a scan with few straight returns claims a wide R, and with R in the test such a match, 5-10
+mapped wall direction; a scan with few straight returns claims a wide R, and with R in the test such a match, 4-10
 deg off, passed and turned the heading. On 64 scripted 300 s warehouse walks (`experiments/heading_replay.py`) the
 heading passed 4 deg in 9 runs with this gate, 15 with R in it and 28 without priors.
 
