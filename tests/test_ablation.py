@@ -1,17 +1,13 @@
 """The ablation experiment (experiments/ablation.py): its statistics against closed forms, and a
 CPU smoke run of the whole table (simulate, estimate, depth odometry, SLAM per variant)."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
+from _experiments import load
 
-_PATH = Path(__file__).resolve().parents[1] / "experiments" / "ablation.py"
-_spec = importlib.util.spec_from_file_location("ablation", _PATH)
-ablation = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(ablation)
+ablation = load("ablation")
 
 
 def test_statistics_against_closed_forms():

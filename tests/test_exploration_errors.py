@@ -1,27 +1,16 @@
 """experiments/exploration_errors.py on traces written by experiments/exploration.py --traces: the summary
 against values built into synthetic traces (loop candidates included), and the file round trip."""
 
-import importlib.util
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from _experiments import load
 from scipy.stats import norm
 
 from jaxquad.explore import OUTCOMES
 
-
-def _module(name):
-    spec = importlib.util.spec_from_file_location(
-        name, Path(__file__).resolve().parents[1] / "experiments" / f"{name}.py"
-    )
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-errors, exploration = _module("exploration_errors"), _module("exploration")
+errors, exploration = load("exploration_errors"), load("exploration")
 
 T = np.arange(1, 1250) * 0.096  # tick end times, the last at 119.904 s: the 2nd minute's sample is a tick short
 

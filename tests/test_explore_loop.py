@@ -242,16 +242,13 @@ def test_experiment_keeps_a_cell_that_finishes_in_one_sitting(run, tmp_path, mon
     """experiments/exploration.py with `--checkpoint` naming a folder that does not exist yet, its exploration the
     fixture's run (explore replaced, no second simulation): the cell finishes in its first sitting and its row is
     kept in the folder (made before any work); run again, the script reads the kept row and explores nothing."""
-    import importlib.util
     import sys
-    from pathlib import Path
+
+    from _experiments import load
 
     import jaxquad.explore
 
-    path = Path(__file__).parents[1] / "experiments" / "exploration.py"
-    spec = importlib.util.spec_from_file_location("exploration", path)
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    script = load("exploration")
     calls = []
     monkeypatch.setattr(jaxquad.explore, "explore", lambda cfg, **kw: calls.append(cfg) or run)
     cells = tmp_path / "new" / "cells"

@@ -1,15 +1,11 @@
 """experiments/navigation.py's bookkeeping: cells run as separate jobs merged into one Table II."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
+from _experiments import load
 
-_PATH = Path(__file__).resolve().parents[1] / "experiments" / "navigation.py"
-_spec = importlib.util.spec_from_file_location("navigation_experiment", _PATH)
-navigation = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(navigation)
+navigation = load("navigation", "navigation_experiment")
 
 SETTINGS = {"robots": 4, "goals": 5, "samples": 64}
 
