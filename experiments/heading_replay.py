@@ -84,14 +84,11 @@ def drifting_odometry(truth: np.ndarray, rng: np.random.Generator, yaw_walk: flo
     c, s = np.cos(truth[:-1, 2]), np.sin(truth[:-1, 2])
     d = truth[1:, :2] - truth[:-1, :2]
     body = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], 1) + rng.normal(0, 0.002, (S - 1, 2))
-    odom = np.array(truth, np.float64)
     heading = truth[:, 2] + drift
-    for k in range(1, S):
-        ck, sk = np.cos(heading[k - 1]), np.sin(heading[k - 1])
-        odom[k, :2] = odom[k - 1, :2] + [
-            ck * body[k - 1, 0] - sk * body[k - 1, 1],
-            sk * body[k - 1, 0] + ck * body[k - 1, 1],
-        ]
+    ck, sk = np.cos(heading[:-1]), np.sin(heading[:-1])
+    step = np.stack([ck * body[:, 0] - sk * body[:, 1], sk * body[:, 0] + ck * body[:, 1]], 1)  # in the odometry frame
+    odom = np.array(truth, np.float64)
+    odom[1:, :2] = truth[0, :2] + np.cumsum(step, axis=0)
     odom[:, 2] = heading
     return odom
 
@@ -153,6 +150,7 @@ def inputs(robots: int, seconds: float, seed: int, scan_height: float) -> tuple[
 
 
 def heading_error_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """|a - b| wrapped to [0, 180] deg, in float64 (`kernels.lie.wrap_angle` is float32 where x64 is off)."""
     return np.rad2deg(np.abs((a - b + np.pi) % (2 * np.pi) - np.pi))
 
 
@@ -180,6 +178,7 @@ def score(variant: str, state, out, x: dict, truths: np.ndarray, wall_s: float) 
 
 
 def run(args) -> list[dict]:
+    from jaxquad.cli import progress_bar
     from jaxquad.explore.fleet import ExploreConfig
     from jaxquad.slam import grid_spec, run_fleet, slam_config
 
@@ -190,9 +189,9 @@ def run(args) -> list[dict]:
     for variant in args.variants:
         spec, params = slam_config(base | VARIANTS[variant], grid, "preintegrated")
         t0 = time.perf_counter()
-        _, out, state = run_fleet(spec, params, x)
+        with progress_bar(variant, "scan") as progress:
+            _, out, state = run_fleet(spec, params, x, progress)
         rows.append(score(variant, state, out, x, truths, time.perf_counter() - t0))
-        print(f"{variant}: {rows[-1]['wall_s']:.0f} s", file=sys.stderr, flush=True)
     return rows
 
 
@@ -214,17 +213,27 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter
+    )
     p.add_argument("--robots", type=int, default=4, help="walks (robots) per variant")
     p.add_argument("--seconds", type=float, default=60.0, help="simulated time of each walk (s)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="draws the worlds (1000 * seed + robot), walks and noise")
     p.add_argument("--scan-height", type=float, default=0.32, help="height of the level scan plane (m)")
-    p.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS))
+    p.add_argument(
+        "--variants",
+        nargs="+",
+        choices=list(VARIANTS),
+        default=list(VARIANTS),
+        help="belief: priors gated on the heading's variance; measurement: R counted too; none: no priors",
+    )
     p.add_argument("--params", help="SLAM parameter file over jaxquad/slam/slam.yaml, for every variant")
     p.add_argument("--json", help="write the rows here as JSON")
     args = p.parse_args(argv)
     if args.robots < 1 or args.seconds < 12.0:
         p.error("--robots must be at least 1 and --seconds at least 12 (the walk turns in place for 10.5 s)")
+    if args.seed < 0 or not args.scan_height > 0:
+        p.error(f"--seed must be >= 0 and --scan-height > 0 m, got {args.seed} and {args.scan_height}")
     if args.json and not os.access(os.path.dirname(os.path.abspath(args.json)), os.W_OK):
         p.error(f"--json {args.json}: its folder is not writable")
     if args.params:

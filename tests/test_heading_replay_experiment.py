@@ -1,27 +1,16 @@
 """experiments/heading_replay.py's inputs and scores: its scans against the tests' NumPy caster, its odometry
 against the truth it integrates, the row of hand-built runs, and a bad argument failing in one line."""
 
-import importlib.util
 import subprocess
 import sys
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from _experiments import EXPERIMENTS, load
 from _laser2d import cast
 
-_PATH = Path(__file__).resolve().parents[1] / "experiments" / "heading_replay.py"
-
-
-def _module():
-    spec = importlib.util.spec_from_file_location("heading_replay", _PATH)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-replay = _module()
+replay = load("heading_replay")
 
 
 def _segments(world, height: float) -> np.ndarray:
@@ -90,10 +79,21 @@ def test_score_of_hand_built_runs():
 
 
 @pytest.mark.parametrize(
-    "argv, named", [(["--seconds", "5"], "--seconds"), (["--params", "no_such_file.yaml"], "no_such_file.yaml")]
+    "argv, named",
+    [
+        (["--seconds", "5"], "--seconds"),
+        (["--scan-height", "0"], "--scan-height"),
+        (["--params", "no_such_file.yaml"], "no_such_file.yaml"),
+    ],
 )
 def test_bad_arguments_fail_in_one_line(tmp_path, argv, named):
-    r = subprocess.run([sys.executable, str(_PATH), *argv], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [sys.executable, str(EXPERIMENTS / "heading_replay.py"), *argv],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 2 and r.stdout == ""
     last = r.stderr.strip().splitlines()[-1]
     assert last.startswith("heading_replay.py: error: ") and named in last and "Traceback" not in r.stderr

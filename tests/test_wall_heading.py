@@ -299,7 +299,7 @@ def test_node_update_gain_gate_and_edge():
     )
     _, weight = wall_directions(SPEC, PARAMS, jnp.asarray(ranges), jnp.asarray(BEARINGS, jnp.float32), inp.valid)
     R = float(params.heading_variance_scale) / float(np.sum(weight)) + float(params.heading_min_std) ** 2
-    R_wide = np.deg2rad(3.0) ** 2 * float(np.sum(weight))  # a variance scale for an R of (3 deg)^2
+    scale_wide = np.deg2rad(3.0) ** 2 * float(np.sum(weight))  # the variance scale that makes R (3 deg)^2
     run = jax.jit(lambda s, pose, var: update(spec, params, s, pose, var, inp, jnp.asarray(False)))
     directions, spectrum, measure = _jit()
     # The map's spectrum as node 0's, kept in its frame: map_spectrum turns it by node 0's heading.
@@ -318,7 +318,7 @@ def test_node_update_gain_gate_and_edge():
     wide = eqx.tree_at(
         lambda p: (p.heading_variance_scale, p.heading_gate_with_r),
         params,
-        (jnp.asarray(R_wide, jnp.float32), jnp.asarray(True)),
+        (jnp.asarray(scale_wide, jnp.float32), jnp.asarray(True)),
     )
     P1 = np.deg2rad(1.0) ** 2
     cases = (
