@@ -13,7 +13,7 @@ import numpy as np
 from _laser2d import cast
 from test_slam_online import BEARINGS, LOOP, WORLD, _ate, _drifted, _inputs, _spec
 
-from jaxquad.slam import SlamParams, final_poses, online, run_fleet
+from jaxquad.slam import SlamParams, consistency, final_poses, run_fleet
 from jaxquad.slam import init as slam_init
 
 
@@ -64,7 +64,7 @@ def test_chain_covariance_matches_monte_carlo():
         state,
         (pad(poses), jnp.arange(cap) < n, pad(covs)),
     )
-    got = np.asarray(jax.jit(online.chain_covariance)(state, jnp.asarray(i), jnp.asarray(j)))
+    got = np.asarray(jax.jit(consistency.chain_covariance)(state, jnp.asarray(i), jnp.asarray(j)))
     # Monte Carlo: links i+1..j each perturbed on the right by a draw of its covariance, composed in NumPy.
     m = 200_000
     T = np.broadcast_to(np.zeros(3), (m, 3))
@@ -75,6 +75,63 @@ def test_chain_covariance_matches_monte_carlo():
     err = _between(np.broadcast_to(nominal, (m, 3)), T)  # right perturbation of T_i_j, first order
     want = np.cov(err.T)
     np.testing.assert_allclose(got, want, rtol=0.05, atol=2e-3 * np.sqrt(np.outer(np.diag(want), np.diag(want))).max())
+
+
+def _adjoint(p):
+    """NumPy SE(2) adjoint of pose (x, y, theta): [[R, (y, -x)^T], [0, 0, 1]]."""
+    c, s = np.cos(p[2]), np.sin(p[2])
+    return np.array([[c, -s, p[1]], [s, c, -p[0]], [0.0, 0.0, 1.0]])
+
+
+def test_chain_covariance_with_priors_matches_gaussian_conditioning():
+    """The filtered chain against the batch answer: xi_j = sum_k Ad(T_k_j^-1) w_k and the priors' readings
+    y_m = phi + sum_(k <= m) w_k,theta + v_m, jointly Gaussian; Cov(xi_j | y) by the Schur complement."""
+    rng = np.random.default_rng(1)
+    n, i, j = 12, 2, 10
+    links = np.c_[rng.uniform(0.3, 0.6, n), rng.uniform(-0.1, 0.1, n), rng.uniform(-0.4, 0.4, n)]
+    poses = [links[0]]
+    for k in range(1, n):
+        poses.append(_compose(poses[-1], links[k]))
+    poses = np.array(poses)
+    covs = np.array([np.diag([4e-4, 1e-4, np.deg2rad(1.0) ** 2])] * n)
+    P_i = np.deg2rad(0.7) ** 2
+    info = np.where(np.arange(n) % 3 == 0, 1.0 / np.deg2rad(0.8) ** 2, 0.0)  # priors at nodes 3, 6, 9 (and 0)
+    state = slam_init(_spec("preintegrated"), SlamParams(), jnp.asarray(BEARINGS))
+    cap = state.graph.poses.shape[0]
+    pad = lambda x: jnp.asarray(np.concatenate([x, np.zeros((cap - n, *x.shape[1:]))]), jnp.float32)  # noqa: E731
+    state = eqx.tree_at(
+        lambda s: (s.graph.poses, s.graph.node_mask, s.node_cov, s.node_heading_var, s.node_heading_info),
+        state,
+        (pad(poses), jnp.arange(cap) < n, pad(covs), pad(np.full(n, P_i)), pad(info)),
+    )
+    run = jax.jit(consistency.chain_covariance_with_priors)
+    got = np.asarray(run(state, jnp.asarray(i), jnp.asarray(j)), np.float64)
+    # Unknowns u = (phi, w_i+1 .. w_j), independent; xi_j = G u, y = M u + v.
+    steps = list(range(i + 1, j + 1))
+    cov_u = np.zeros((1 + 3 * len(steps),) * 2)
+    cov_u[0, 0] = P_i
+    G = np.zeros((3, cov_u.shape[0]))
+    for a, k in enumerate(steps):
+        cov_u[1 + 3 * a : 4 + 3 * a, 1 + 3 * a : 4 + 3 * a] = covs[k]
+        G[:, 1 + 3 * a : 4 + 3 * a] = _adjoint(_between(poses[j], poses[k]))
+    measured = [k for k in steps if info[k] > 0]
+    M = np.zeros((len(measured), cov_u.shape[0]))
+    for r, m in enumerate(measured):
+        M[r, 0] = 1.0
+        for a, k in enumerate(steps):
+            if k <= m:
+                M[r, 3 + 3 * a] = 1.0
+    S_yy = M @ cov_u @ M.T + np.diag(1.0 / info[measured])
+    S_xy = G @ cov_u @ M.T
+    want = G @ cov_u @ G.T - S_xy @ np.linalg.solve(S_yy, S_xy.T)
+    scale = np.sqrt(np.outer(np.diag(want), np.diag(want)))
+    assert np.all(np.abs(got - want) <= 1e-3 * scale), (got, want)
+    # The chain's own compounding, with no prior counted, is the unconditioned G cov_u G^T without phi.
+    plain = np.asarray(consistency.chain_covariance(state, jnp.asarray(i), jnp.asarray(j)), np.float64)
+    np.testing.assert_allclose(plain, G[:, 1:] @ cov_u[1:, 1:] @ G[:, 1:].T, rtol=1e-4, atol=1e-9)
+    assert want[2, 2] < 0.5 * plain[2, 2]  # the priors hold the heading: this case tests something
+    no_priors = eqx.tree_at(lambda s: s.node_heading_info, state, jnp.zeros_like(state.node_heading_info))
+    np.testing.assert_allclose(run(no_priors, jnp.asarray(i), jnp.asarray(j)), plain, rtol=1e-4, atol=1e-9)
 
 
 @functools.cache

@@ -327,7 +327,7 @@ def test_node_update_gain_gate_and_edge():
         (np.deg2rad(4.0), P1, 0.0, False),
     )
     for err, P, step, expect_used in cases:
-        st = eqx.tree_at(lambda s: s.heading_var, state, jnp.asarray(P, jnp.float32))
+        st = eqx.tree_at(lambda s: s.node_heading_var, state, jnp.full_like(state.node_heading_var, P))  # any last node
         pose = np.array([1.0, 2.0, sensor[2] - laser + err])
         new, var, local, at, info, used, measured = (np.asarray(a, np.float64) for a in run(st, pose, step))
         assert bool(used) == expect_used

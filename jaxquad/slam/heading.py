@@ -20,11 +20,12 @@ rms of 5.4-7.0 rad: a scale of 50 would give a mean chi-square of 0.6-1.0. The d
 consecutive nodes' measurements sharing their walls' errors: on 8 Go2 route walks of 300 s in the warehouse
 (1-row scans, loop closures off) the final position error was 0.26 m with 100 and 0.32 m with 50.
 
-P, the variance of the last node's heading in the map frame, grows by each node's link variance and shrinks
-with each measurement used, as a scalar Kalman filter would; the node's heading moves by the gain
+P, the variance of a node's heading in the map frame, grows from the last node's by the new node's link variance
+and shrinks with each measurement used, as a scalar Kalman filter would; the node's heading moves by the gain
 P / (P + R) times the error, and the measurement enters the graph as an edge from node 0 (held fixed) with
 information on the heading alone, so later optimizations keep it. Loop closures leave P as it was (an upper
-bound).
+bound). Each node keeps its P (`node_heading_var`) and its prior's 1/R (`node_heading_info`, 0 where none was
+used), which the loop-closure test's chain filter reads (`jaxquad.slam.consistency`).
 """
 
 from __future__ import annotations
@@ -60,7 +61,8 @@ def update(
     when unused))."""
     laser = params.T_base_laser[2]
     direction, weight = wall_directions(spec.heading, params.heading, inp.ranges, state.bearings, inp.valid)
-    var = state.heading_var + jnp.where(first, 0.0, step_var)
+    last = jnp.maximum(state.n_nodes - 1, 0)
+    var = jnp.where(first, 0.0, state.node_heading_var[last] + step_var)
     local = direction_spectrum(spec.heading, direction, weight, laser)
     scan = rotate_spectrum(spec.heading, local, pose[2])
     meas = measure_heading(spec.heading, params.heading, scan, map_spectrum(spec, state))

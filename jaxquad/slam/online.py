@@ -37,16 +37,16 @@ With a constraint the new node's pose is the optimum of the match edge (Cauchy-r
 `solver.robust_width` in chi-square units) and the leg-odometry edge, the last node held: a scan
 that matches far from where the legs say the robot went is overruled instead of yanking the path.
 
-Then the loop-closure search (`kernels.loop_closure`) runs for the new node. A candidate that passes its
-response and ambiguity tests must also agree with the graph: its innovation (the measured pose of node j
-in node i's frame against the graph's) has a chi-square, with the covariance of the graph's chain from i
-to j (each node's link and leg-odometry information, compounded) plus the match's, of at most
-`loop_max_chi2`. A narrow depth-camera scan (~87 deg) that sees one wall or a room like another can
-match confidently metres away from where the robot is; without the test that one edge, weighted by
-its response spread, drags the whole graph. An accepted closure adds its edge and the whole graph is
-optimized (`kernels.posegraph`, node 0 fixed). Match links are Cauchy-robust and loop edges plain by
-default (`robust_links`, `robust_loops`; laser logs swap them: there the links are the only chain). The occupancy map
-takes every node's scan at its node's pose; after an optimization it is redrawn from all nodes
+Then the loop-closure search (`kernels.loop_closure`) runs for the new node. A candidate that passes its response
+and ambiguity tests must also agree with the graph: its innovation (the measured pose of node j in node i's frame
+against the graph's) has a chi-square, with the covariance of the graph's chain from i to j (each node's link and
+leg-odometry information, compounded, and filtered by the wall-heading priors when there are any:
+`jaxquad.slam.consistency`) plus the match's, of at most `loop_max_chi2`. A narrow depth-camera scan (~87 deg) that
+sees one wall or a room like another can match confidently metres away from where the robot is; without the test
+that one edge, weighted by its response spread, drags the whole graph. An accepted closure adds its edge and the
+whole graph is optimized (`kernels.posegraph`, node 0 fixed). Match links are Cauchy-robust and loop edges plain by
+default (`robust_links`, `robust_loops`; laser logs swap them: there the links are the only chain). The occupancy
+map takes every node's scan at its node's pose; after an optimization it is redrawn from all nodes
 (`SlamSpec.refresh_map`; a fleet may clear that and call `refresh_map` itself).
 
 With `SlamSpec.wall_heading` a new node's heading is also measured against the map's wall directions before
@@ -68,6 +68,7 @@ from jaxquad.kernels.posegraph import ROBUST_CAUCHY, ROBUST_NONE, PoseGraph, opt
 from jaxquad.kernels.scan_grid import likelihood_grid, world_points
 from jaxquad.kernels.scan_match import match_scan
 from jaxquad.slam import heading as wall_heading
+from jaxquad.slam.consistency import loop_chi2
 from jaxquad.slam.state import (
     EDGE_HEADING,
     EDGE_LEG,
@@ -208,9 +209,14 @@ def _add_node(spec: SlamSpec, params: SlamParams, state: SlamState, pred, inp: S
         )
         z_h = _between(state.graph.poses[0], measured)  # the prior's information is on its heading alone
         state = eqx.tree_at(
-            lambda s: (s.heading_var, s.node_directions, s.headings),
+            lambda s: (s.node_heading_var, s.node_heading_info, s.node_directions, s.headings),
             state,
-            (var, state.node_directions.at[j].set(local), state.headings + h_used.astype(state.headings.dtype)),
+            (
+                state.node_heading_var.at[j].set(var),
+                state.node_heading_info.at[j].set(jnp.where(h_used, info_h[2, 2], 0.0)),
+                state.node_directions.at[j].set(local),
+                state.headings + h_used.astype(state.headings.dtype),
+            ),
         )
 
     g = state.graph
@@ -263,24 +269,6 @@ def _insert(spec: SlamSpec, params: SlamParams, grid: OccupancyGrid, base, range
     return insert_scan(spec.grid, params.occupancy, grid, _sensor(params, base), r, bearings)
 
 
-def chain_covariance(state: SlamState, i: Int[Array, ""], j: Int[Array, ""]) -> Float[Array, "3 3"]:
-    """Covariance of node j's pose in node i's frame (right perturbation) along the chain of links from i
-    to j: each node k's link covariance moved into node j's frame by Ad(T_k_j^-1) and summed."""
-    poses = state.graph.poses
-    k = jnp.arange(poses.shape[0])
-    on = (k > i) & (k <= j) & state.graph.node_mask
-    A = jax.vmap(lambda p: se2(_between(p, poses[j])).inverse().adjoint())(poses)
-    return jnp.einsum("k,kab,kbc,kdc->ad", on.astype(poses.dtype), A, state.node_cov, A)
-
-
-def _loop_chi2(state: SlamState, i, j, z: Float[Array, "3"], cov_z: Float[Array, "3 3"]) -> Float[Array, ""]:
-    """Chi-square of a loop constraint z (node j in node i's frame) against the graph's estimate of it."""
-    x = state.graph.poses
-    r = _between(z, _between(x[i], x[j]))
-    S = chain_covariance(state, i, j) + cov_z
-    return r @ jnp.linalg.solve(0.5 * (S + S.T) + 1e-9 * jnp.eye(3), r)
-
-
 def _close_loop(spec: SlamSpec, params: SlamParams, state: SlamState, j, response):
     g = state.graph
     cand = find_loop_closure(
@@ -289,7 +277,7 @@ def _close_loop(spec: SlamSpec, params: SlamParams, state: SlamState, j, respons
     L = se2(params.T_base_laser)
     z = xy_theta(L @ se2(cand.T_i_j) @ L.inverse())
     cov_z = _to_base_cov(params, cand.covariance) * params.match_cov_scale
-    chi2 = _loop_chi2(state, cand.i, j, z, cov_z)
+    chi2 = loop_chi2(spec, params, state, cand.i, j, z, cov_z)
     accept = cand.accept & (chi2 <= params.loop_max_chi2)
     robust = jnp.where(params.robust_loops, ROBUST_CAUCHY, ROBUST_NONE)
     state = _add_edge(state, cand.i, j, z, _information(cov_z), robust, EDGE_LOOP, accept)

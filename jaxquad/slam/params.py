@@ -29,6 +29,7 @@ _INTEGER = (
     "robust_loop_edges",
     "wall_heading",
     "wall_heading_gate_with_r",
+    "wall_heading_in_loop_test",
 )
 _FRACTION = (
     "link_match_minimum_response_fine",
@@ -50,6 +51,7 @@ _MAY_BE_ZERO = (
     "robust_loop_edges",
     "wall_heading",
     "wall_heading_gate_with_r",
+    "wall_heading_in_loop_test",
     "wall_heading_min_quality",
     "wall_heading_variance_scale",
 )
@@ -97,7 +99,13 @@ def load_params(path: str | os.PathLike | None = None, laser: bool = False) -> d
             values[key] = int(v)
         if v < 0 or (v == 0 and key not in _MAY_BE_ZERO) or (key in _FRACTION and v > 1):
             raise ValueError(f"params file {source}: {key} = {v!r} is out of range")
-    for key in ("robust_match_links", "robust_loop_edges", "wall_heading", "wall_heading_gate_with_r"):
+    for key in (
+        "robust_match_links",
+        "robust_loop_edges",
+        "wall_heading",
+        "wall_heading_gate_with_r",
+        "wall_heading_in_loop_test",
+    ):
         if values[key] not in (0, 1):
             raise ValueError(f"params file {source}: {key} must be 0 or 1, got {values[key]!r}")
     if not (0.5 < values["occupancy_hit_probability"] < 1.0 and 0.0 < values["occupancy_miss_probability"] < 0.5):
@@ -188,5 +196,6 @@ def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=
         heading_min_quality=f(v["wall_heading_min_quality"]),
         heading_max_chi2=f(v["wall_heading_max_chi2"]),
         heading_gate_with_r=jnp.asarray(v["wall_heading_gate_with_r"] == 1),
+        loop_chain_priors=jnp.asarray(v["wall_heading_in_loop_test"] == 1),
     )
     return spec, params

@@ -71,6 +71,8 @@ class SlamParams(eqx.Module):
     heading_min_quality: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.5))  # correlation quality, 0-1
     heading_max_chi2: Float[Array, ""] = eqx.field(default_factory=lambda: _f(10.83))  # chi-square, 1 dof
     heading_gate_with_r: Bool[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(False))  # R in the gate too
+    # the loop test's chain filtered by the wall-heading priors (jaxquad.slam.consistency)
+    loop_chain_priors: Bool[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(True))
 
 
 class SlamInputs(eqx.Module):
@@ -110,7 +112,8 @@ class SlamState(eqx.Module):
     full: Bool[Array, ""]  # node capacity reached: later scans add no node
     node_directions: Float[Array, "n_h k 2"]  # each node scan's wall-direction spectrum in its base frame
     # (kernels.wall_heading; n_h = n with SlamSpec.wall_heading, else 0)
-    heading_var: Float[Array, ""]  # rad^2: variance of the last node's heading in the map frame
+    node_heading_var: Float[Array, " n_h"]  # rad^2: variance of the node's heading in the map frame (heading filter)
+    node_heading_info: Float[Array, " n_h"]  # 1/rad^2: information of the node's wall-heading prior (0: none used)
     headings: Int[Array, ""]  # accepted wall-heading priors
 
 
@@ -163,6 +166,7 @@ def init(spec: SlamSpec, params: SlamParams, bearings: Float[Array, " b"]) -> Sl
         loops=zero_i,
         full=jnp.asarray(False),
         node_directions=jnp.zeros((n if spec.wall_heading else 0, spec.heading.harmonics, 2)),
-        heading_var=zero_f,
+        node_heading_var=jnp.zeros(n if spec.wall_heading else 0),
+        node_heading_info=jnp.zeros(n if spec.wall_heading else 0),
         headings=zero_i,
     )
