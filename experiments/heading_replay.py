@@ -26,7 +26,6 @@ median final heading error; loops closed and heading priors used per run (means)
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import shlex
@@ -251,10 +250,9 @@ def main(argv=None) -> None:
     rows = run(args)
     print(table(rows))
     if args.json:
-        tmp = f"{args.json}.tmp"
-        with open(tmp, "w") as f:
-            json.dump(rows, f, indent=1)
-        os.replace(tmp, args.json)
+        from jaxquad.io import write_json
+
+        write_json(args.json, rows)
 
 
 if __name__ == "__main__":

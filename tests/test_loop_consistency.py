@@ -132,6 +132,8 @@ def test_chain_covariance_with_priors_matches_gaussian_conditioning():
     assert want[2, 2] < 0.5 * plain[2, 2]  # the priors hold the heading: this case tests something
     no_priors = eqx.tree_at(lambda s: s.node_heading_info, state, jnp.zeros_like(state.node_heading_info))
     np.testing.assert_allclose(run(no_priors, jnp.asarray(i), jnp.asarray(j)), plain, rtol=1e-4, atol=1e-9)
+    off = run(state, jnp.asarray(i), jnp.asarray(j), jnp.asarray(False))  # the priors switched off
+    np.testing.assert_allclose(off, plain, rtol=1e-4, atol=1e-9)
 
 
 @functools.cache

@@ -3,8 +3,8 @@ node i's frame may lie from the graph's, given the graph's own uncertainty along
 
 `chain_covariance` compounds the chain's links (each node's match and leg-odometry information). With wall-heading
 priors (`SlamSpec.wall_heading`) the heading does not wander freely along the chain: each prior pins a node's
-heading in the map frame. `chain_covariance_with_priors` (used when `SlamParams.loop_chain_priors`) runs the
-chain as a Kalman filter whose state is the pose of node k in node i's frame plus node i's heading error in the
+heading in the map frame. `chain_covariance_with_priors` (the priors applied when `SlamParams.loop_chain_priors`)
+runs the chain as a Kalman filter whose state is the pose of node k in node i's frame plus node i's heading error in the
 map frame (variance the heading filter's P at node i); every used prior is a measurement of their sum, with its
 own variance R. Without it the chain's heading spread was far wider than its error (on replayed warehouse walks
 the chain claimed a median heading std of 3.7 deg where its error had a median of 0.56 deg), and its position
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
 from jaxquad.kernels.chain_filter import filtered_covariance
 from jaxquad.kernels.lie import se2, xy_theta
@@ -34,8 +34,11 @@ def chain_covariance(state: SlamState, i: Int[Array, ""], j: Int[Array, ""]) -> 
     return jnp.einsum("k,kab,kbc,kdc->ad", on.astype(poses.dtype), A, state.node_cov, A)
 
 
-def chain_covariance_with_priors(state: SlamState, i: Int[Array, ""], j: Int[Array, ""]) -> Float[Array, "3 3"]:
-    """The same covariance, filtered by the wall-heading priors of nodes i+1..j (`kernels.chain_filter`).
+def chain_covariance_with_priors(
+    state: SlamState, i: Int[Array, ""], j: Int[Array, ""], priors: Bool[Array, ""] = True
+) -> Float[Array, "3 3"]:
+    """The same covariance, filtered by the wall-heading priors of nodes i+1..j (`kernels.chain_filter`); with
+    `priors` false none is applied and the filter compounds the links as `chain_covariance` does.
 
     State (phi, xi): phi node i's heading error in the map frame (variance `node_heading_var[i]`), xi the right
     perturbation of node k's pose in node i's frame; a step k is xi <- Ad(D_k^-1) xi + w_k (D_k node k in node
@@ -51,7 +54,7 @@ def chain_covariance_with_priors(state: SlamState, i: Int[Array, ""], j: Int[Arr
     F = jnp.where(on[:, None, None], F, jnp.eye(4))
     Q = jnp.zeros((n, 4, 4)).at[:, 1:, 1:].set(jnp.where(on[:, None, None], state.node_cov, 0.0))
     h = jnp.broadcast_to(jnp.array([1.0, 0.0, 0.0, 1.0]), (n, 4))
-    info = jnp.where(on, state.node_heading_info, 0.0)
+    info = jnp.where(on & priors, state.node_heading_info, 0.0)
     P0 = jnp.zeros((4, 4)).at[0, 0].set(state.node_heading_var[i])
     return filtered_covariance(F, Q, h, info, P0)[1:, 1:]
 
@@ -62,8 +65,9 @@ def loop_chi2(
     """Chi-square of a loop constraint z (node j in node i's frame) against the graph's estimate of it."""
     x = state.graph.poses
     r = xy_theta(se2(z).inverse() @ se2(x[i]).inverse() @ se2(x[j]))
-    chain = chain_covariance(state, i, j)
-    if spec.wall_heading:
-        chain = jnp.where(params.loop_chain_priors, chain_covariance_with_priors(state, i, j), chain)
+    if spec.wall_heading:  # one chain computed, the priors applied or not
+        chain = chain_covariance_with_priors(state, i, j, params.loop_chain_priors)
+    else:
+        chain = chain_covariance(state, i, j)
     S = chain + cov_z
     return r @ jnp.linalg.solve(0.5 * (S + S.T) + 1e-9 * jnp.eye(3), r)

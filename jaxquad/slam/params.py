@@ -19,17 +19,20 @@ from jaxquad.slam.state import SlamParams, SlamSpec
 
 DEFAULTS_FILE = Path(__file__).with_name("slam.yaml")
 LASER_FILE = Path(__file__).with_name("laser.yaml")  # overrides of slam.yaml for 2D laser logs
+_SWITCHES = (  # 0 or 1
+    "robust_match_links",
+    "robust_loop_edges",
+    "wall_heading",
+    "wall_heading_gate_with_r",
+    "wall_heading_in_loop_test",
+)
 _INTEGER = (
     "scan_buffer_size",
     "loop_match_minimum_chain_size",
     "loop_chain_scans",
     "node_capacity",
     "solver_max_iterations",
-    "robust_match_links",
-    "robust_loop_edges",
-    "wall_heading",
-    "wall_heading_gate_with_r",
-    "wall_heading_in_loop_test",
+    *_SWITCHES,
 )
 _FRACTION = (
     "link_match_minimum_response_fine",
@@ -47,11 +50,7 @@ _MAY_BE_ZERO = (
     "loop_match_minimum_response_fine",
     "loop_minimum_travel",
     "loop_ambiguity_distance",
-    "robust_match_links",
-    "robust_loop_edges",
-    "wall_heading",
-    "wall_heading_gate_with_r",
-    "wall_heading_in_loop_test",
+    *_SWITCHES,
     "wall_heading_min_quality",
     "wall_heading_variance_scale",
 )
@@ -99,13 +98,7 @@ def load_params(path: str | os.PathLike | None = None, laser: bool = False) -> d
             values[key] = int(v)
         if v < 0 or (v == 0 and key not in _MAY_BE_ZERO) or (key in _FRACTION and v > 1):
             raise ValueError(f"params file {source}: {key} = {v!r} is out of range")
-    for key in (
-        "robust_match_links",
-        "robust_loop_edges",
-        "wall_heading",
-        "wall_heading_gate_with_r",
-        "wall_heading_in_loop_test",
-    ):
+    for key in _SWITCHES:
         if values[key] not in (0, 1):
             raise ValueError(f"params file {source}: {key} must be 0 or 1, got {values[key]!r}")
     if not (0.5 < values["occupancy_hit_probability"] < 1.0 and 0.0 < values["occupancy_miss_probability"] < 0.5):
