@@ -211,13 +211,26 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def add_walk_arguments(p: argparse.ArgumentParser, robots: int) -> None:
+    """--robots, --seconds and --seed: the walks (this script's and heading_association.py's)."""
+    p.add_argument("--robots", type=int, default=robots, help="walks (robots)")
+    p.add_argument("--seconds", type=float, default=60.0, help="simulated time of each walk (s)")
+    p.add_argument("--seed", type=int, default=0, help="draws the worlds (1000 * seed + robot), walks and noise")
+
+
+def check_walk_arguments(p: argparse.ArgumentParser, args) -> None:
+    """One line, before any work, for walks that cannot be drawn."""
+    if args.robots < 1 or args.seconds < 12.0:
+        p.error("--robots must be at least 1 and --seconds at least 12 (the walk turns in place for 10.5 s)")
+    if args.seed < 0:
+        p.error(f"--seed must be >= 0, got {args.seed}")
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter
     )
-    p.add_argument("--robots", type=int, default=4, help="walks (robots) per variant")
-    p.add_argument("--seconds", type=float, default=60.0, help="simulated time of each walk (s)")
-    p.add_argument("--seed", type=int, default=0, help="draws the worlds (1000 * seed + robot), walks and noise")
+    add_walk_arguments(p, robots=4)
     p.add_argument("--scan-height", type=float, default=0.32, help="height of the level scan plane (m)")
     p.add_argument(
         "--variants",
@@ -229,10 +242,9 @@ def main(argv=None) -> None:
     p.add_argument("--params", help="SLAM parameter file over jaxquad/slam/slam.yaml, for every variant")
     p.add_argument("--json", help="write the rows here as JSON")
     args = p.parse_args(argv)
-    if args.robots < 1 or args.seconds < 12.0:
-        p.error("--robots must be at least 1 and --seconds at least 12 (the walk turns in place for 10.5 s)")
-    if args.seed < 0 or not args.scan_height > 0:
-        p.error(f"--seed must be >= 0 and --scan-height > 0 m, got {args.seed} and {args.scan_height}")
+    check_walk_arguments(p, args)
+    if not args.scan_height > 0:
+        p.error(f"--scan-height must be > 0 m, got {args.scan_height}")
     if args.json and not os.access(os.path.dirname(os.path.abspath(args.json)), os.W_OK):
         p.error(f"--json {args.json}: its folder is not writable")
     if args.params:
