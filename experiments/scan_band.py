@@ -2,7 +2,7 @@
 what the map's inverse sensor model makes of the scans.
 
     python experiments/scan_band.py [--robot go2] [--world house] [--robots 2] [--seconds 40] [--seed 0]
-        [--map-models 0.7/0.4 0.8/0.35 0.8/0.3]
+        [--map-models 0.7/0.4 0.8/0.35 0.8/0.3] [--hit-offsets 0 0.025 0.05]
 
 It simulates a fleet with depth (aggressive gait, in memory), runs the estimator with true contacts,
 and slices stabilized scans three ways: a 5-row band reduced by its minimum (the paper's rule, ROS
@@ -19,7 +19,8 @@ depthimage_to_laserscan's), a 1-row band, and a 5-row band reduced by its median
   the 1-row scans out to 4 m (what exploration maps), at the true laser poses and at the leg-inertial
   odometry's: precision, in-view IoU and recall, and `free seen`, the share of the true free cells that
   the rays from the true path crossed which the map calls free (below occupancy 0.196; what exploration's
-  coverage counts). Mean over robots.
+  coverage counts). Mean over robots. With --hit-offsets, each model's maps for each `occupancy_hit_offset`
+  (a return's end cell taken that far beyond it along the ray, m).
 """
 
 from __future__ import annotations
@@ -64,7 +65,17 @@ def main() -> int:
         metavar="HIT/MISS",
         help="inverse sensor models to compare, e.g. 0.8/0.35 (slam.yaml's) 0.8/0.3 (default: none)",
     )
+    p.add_argument(
+        "--hit-offsets",
+        nargs="+",
+        type=float,
+        default=[0.0],
+        metavar="M",
+        help="with --map-models: the hit offsets to compare, m, 0 to one cell (default 0)",
+    )
     args = p.parse_args()
+    if not all(0.0 <= h <= 0.05 for h in args.hit_offsets):
+        p.error(f"--hit-offsets must lie in [0, 0.05] m (one cell), got {args.hit_offsets}")
     if args.robots < 1 or not args.seconds > 0:
         p.error("--robots must be >= 1 and --seconds positive")
     try:
@@ -135,11 +146,11 @@ def main() -> int:
     if models:
         T_odom = se2(jnp.asarray(x["odom"], jnp.float32)) @ se2(jnp.asarray(x["T_base_laser"], jnp.float32))
         poses = {"true": laser, "leg odometry": np.asarray(xy_theta(T_odom))}
-        _map_models(models, truth, spec, poses, scans[KINDS[2][0]], scans[KINDS[1][0]])
+        _map_models(models, args.hit_offsets, truth, spec, poses, scans[KINDS[2][0]], scans[KINDS[1][0]])
     return 0
 
 
-def _map_models(models, truth, spec, poses: dict, median_scans, row_scans) -> None:
+def _map_models(models, offsets, truth, spec, poses: dict, median_scans, row_scans) -> None:
     """The third table (module docstring): each model's maps at each kind of pose, for both scan uses."""
     from jaxquad.io.maps import FREE_THRESH
     from jaxquad.kernels.occupancy import OccupancyParams
@@ -148,14 +159,19 @@ def _map_models(models, truth, spec, poses: dict, median_scans, row_scans) -> No
 
     logit = lambda q: jnp.asarray(math.log(q / (1.0 - q)))  # noqa: E731
     true_free = (truth.grid >= 0) & (truth.grid < 100 * FREE_THRESH)
-    print("\n| scans | map range m | hit / miss | poses | precision | IoU in view | recall in view | free seen |")
-    print("|---|---:|---|---|---:|---:|---:|---:|")
+    print(
+        "\n| scans | map range m | hit / miss | hit offset m | poses | precision | IoU in view | recall in view "
+        "| free seen |"
+    )
+    print("|---|---:|---|---:|---|---:|---:|---:|---:|")
     for label, (ranges, bearings), map_range in (("5 rows, median", median_scans, 8.0), ("1 row", row_scans, 4.0)):
         n = ranges.shape[0]
         in_view = [cells_in_view(truth, poses["true"][i], bearings, map_range) for i in range(n)]
         crossed = None  # the true free cells that rays from the true path crossed: the same for every model
-        for hit, miss in models:
-            params = OccupancyParams(l_free=logit(miss), l_occ=logit(hit), range_max=jnp.asarray(map_range))
+        for (hit, miss), offset in ((m, o) for m in models for o in offsets):
+            params = OccupancyParams(
+                l_free=logit(miss), l_occ=logit(hit), range_max=jnp.asarray(map_range), hit_offset=jnp.asarray(offset)
+            )
             for kind, laser in poses.items():
                 grids = fleet_maps(
                     spec, params, jnp.asarray(laser, jnp.float32), jnp.asarray(ranges), jnp.asarray(bearings)
@@ -171,7 +187,8 @@ def _map_models(models, truth, spec, poses: dict, median_scans, row_scans) -> No
                     rows.append((s.precision, s.iou_in_view, s.recall_in_view, seen_free))
                 m = np.mean(rows, 0)
                 print(
-                    f"| {label} | {map_range:g} | {hit:g} / {miss:g} | {kind} | {m[0]:.3f} | {m[1]:.3f} | {m[2]:.3f} "
+                    f"| {label} | {map_range:g} | {hit:g} / {miss:g} | {offset:g} | {kind} | {m[0]:.3f} | {m[1]:.3f} "
+                    f"| {m[2]:.3f} "
                     f"| {m[3]:.3f} |",
                     flush=True,
                 )

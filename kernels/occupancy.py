@@ -9,7 +9,7 @@ cells of integer Bresenham (the major axis steps one cell at a time; the minor o
 ceil((2 k d_minor - d_major) / (2 d_major)), the closed form of the classic error-term loop with its
 tie rule), in a fixed number of steps so that it jits and vmaps. Cells before the end cell are free;
 the end cell is occupied when the ray has a return. Rays, by reading r:
-  range_min <= r < range_max (finite): free up to the hit, hit cell occupied;
+  range_min <= r < range_max (finite): free up to the hit, hit cell occupied (the hit at r + hit_offset);
   r >= range_max or r = +inf (no return): free up to range_max, its end cell included, no hit;
   NaN, -inf or r < range_min (0 included: a depth camera's invalid pixel): ignored.
 Per scan each ray brings its evidence to its cells (l_occ to its end cell when it has a return, l_free
@@ -57,6 +57,11 @@ class OccupancyParams(eqx.Module):
     l_max: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(3.5))
     range_min: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(0.1))
     range_max: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(20.0))
+    # m: a return's end cell is taken this far beyond the reading, along the ray (at most the grid's max_range). A
+    # map cell is occupied when its centre lies inside an obstacle, so the cell a face passes through is free when
+    # its centre is in front of the face; half a cell puts a square-on return into the cell whose centre is behind
+    # the face, and leaves the one in front to the ray's free evidence.
+    hit_offset: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(0.0))
 
 
 class OccupancyGrid(eqx.Module):
@@ -109,7 +114,7 @@ def scan_evidence(
     range_max = jnp.minimum(params.range_max, spec.max_range)
     no_return = (ranges >= range_max) & ~jnp.isnan(ranges)  # +inf included
     valid = no_return | (jnp.isfinite(ranges) & (ranges >= params.range_min))
-    r = jnp.where(no_return | ~valid, range_max, ranges)
+    r = jnp.where(no_return | ~valid, range_max, jnp.minimum(ranges + params.hit_offset, spec.max_range))
     angle = pose[2] + bearings
     row0, col0 = _cell(spec, pose[0], pose[1])
     row1, col1 = _cell(spec, pose[0] + r * jnp.cos(angle), pose[1] + r * jnp.sin(angle))

@@ -282,6 +282,8 @@ CASES = {
         ("explore --out {new} --chunk-ticks 15", ["--chunk-ticks", "10"]),
         ("explore --out {new} --map-range 0", ["--map-range"]),
         ("explore --out {new} --map-miss-probability 0.5", ["--map-miss-probability"]),
+        ("explore --out {new} --map-hit-offset -0.01", ["--map-hit-offset"]),
+        ("explore --out {new} --map-hit-offset 0.06", ["--map-hit-offset", "resolution"]),
         ("explore --out {new} --revisit-after -1", ["--revisit-after"]),
         ("explore --out {new} --revisit-after inf", ["--revisit-after"]),
         ("explore --out {new} --band-height 0", ["--band-height"]),

@@ -37,9 +37,9 @@ def _bresenham(c0, r0, c1, r1):
     return cells
 
 
-def _evidence_np(spec, pose, ranges, bearings, range_min, range_max, l_occ, l_free):
-    """Per cell: the sum of the rays' evidence (l_occ at a return's end cell, l_free elsewhere on the ray)
-    clipped to [l_free, l_occ], and whether a ray touched it."""
+def _evidence_np(spec, pose, ranges, bearings, range_min, range_max, l_occ, l_free, hit_offset=0.0):
+    """Per cell: the sum of the rays' evidence (l_occ at a return's end cell, `hit_offset` beyond the reading,
+    l_free elsewhere on the ray) clipped to [l_free, l_occ], and whether a ray touched it."""
     total = np.zeros((spec.rows, spec.cols))
     touched = np.zeros((spec.rows, spec.cols), bool)
     cell = lambda x, y: (
@@ -51,7 +51,7 @@ def _evidence_np(spec, pose, ranges, bearings, range_min, range_max, l_occ, l_fr
         if np.isnan(r) or r == -np.inf or r < range_min:
             continue
         hit = r < range_max
-        d = r if hit else range_max
+        d = min(np.float32(r) + np.float32(hit_offset), spec.max_range) if hit else range_max
         a = np.float32(pose[2]) + np.float32(b)
         r1, c1 = cell(np.float32(pose[0]) + np.float32(d) * np.cos(a), np.float32(pose[1]) + np.float32(d) * np.sin(a))
         line = _bresenham(c0, r0, c1, r1)
@@ -82,6 +82,33 @@ def test_scan_evidence_equals_numpy_bresenham_sums():
         # cells that rays both end in and cross, with a change strictly between the two bounds
         mixed += int(np.sum((ref_delta > l_free + 1e-6) & (ref_delta < l_occ - 1e-6) & (ref_delta != 0)))
     assert mixed > 10
+
+
+def test_hit_offset_moves_the_end_cell_along_the_ray():
+    """The end cell is taken `hit_offset` beyond the reading: against the NumPy lines for random scans, and in
+    closed form for a face met square-on: with half a cell, the occupied cell is the one whose centre is behind
+    the face, and the cell the face passes through with its centre in front is crossed (free)."""
+    rng = np.random.default_rng(1)
+    l_occ, l_free = float(PARAMS.l_occ), float(PARAMS.l_free)
+    for offset in (0.05, 0.1):
+        params = OccupancyParams(range_min=jnp.asarray(0.2), range_max=jnp.asarray(4.0), hit_offset=jnp.asarray(offset))
+        pose = np.array([rng.uniform(-3, 3), rng.uniform(-2, 2), rng.uniform(-np.pi, np.pi)], np.float32)
+        bearings = np.linspace(-np.pi, np.pi, 181, endpoint=False).astype(np.float32)
+        ranges = rng.uniform(0.0, 5.0, 181).astype(np.float32)
+        ranges[::13] = 3.98  # returns within the offset of range_max: still hits, drawn beyond it
+        delta, touched = _evidence(SPEC, params, jnp.asarray(pose), jnp.asarray(ranges), jnp.asarray(bearings))
+        ref_delta, ref_touched = _evidence_np(SPEC, pose, ranges, bearings, 0.2, 4.0, l_occ, l_free, offset)
+        assert np.array_equal(np.asarray(touched), ref_touched), offset
+        np.testing.assert_allclose(np.asarray(delta), ref_delta, atol=1e-5)
+    # Square-on: the sensor at x = -3.95 (column 0's centre) looking along +x; column 40 spans x in [0, 0.1),
+    # its centre at 0.05. A face at x = 0.02 puts that centre inside the obstacle, a face at x = 0.08 in front.
+    plain = OccupancyParams(range_min=jnp.asarray(0.2), range_max=jnp.asarray(4.5))
+    half = OccupancyParams(range_min=jnp.asarray(0.2), range_max=jnp.asarray(4.5), hit_offset=jnp.asarray(0.05))
+    pose, bearing, row = jnp.asarray([-3.95, 0.05, 0.0]), jnp.asarray([0.0]), 30
+    for face, centre_behind in ((0.02, 40), (0.08, 41)):
+        for params, end_col in ((half, centre_behind), (plain, 40)):  # without the offset: the face's own cell
+            delta = np.asarray(_evidence(SPEC, params, pose, jnp.asarray([face + 3.95]), bearing)[0])[row]
+            assert delta[end_col] > 0 and np.all(delta[1:end_col] < 0) and np.all(delta[end_col + 1 :] == 0), face
 
 
 def test_log_odds_update_and_clamping():

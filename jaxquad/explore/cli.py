@@ -34,6 +34,13 @@ def add_loop_arguments(parser: argparse.ArgumentParser) -> None:
         f"(default {c.map_miss_probability})",
     )
     parser.add_argument(
+        "--map-hit-offset",
+        type=float,
+        default=c.map_hit_offset,
+        help="a return marks the map cell this far beyond it along the ray, m, 0 to one cell, in place of the SLAM "
+        f"file's (default {c.map_hit_offset:g}: half a cell, the cell whose centre is behind the face)",
+    )
+    parser.add_argument(
         "--wall-heading",
         choices=("on", "off"),
         default="on" if c.wall_heading else "off",
@@ -72,7 +79,11 @@ def check_loop_arguments(args: argparse.Namespace) -> None:
 
     if not 0.0 < args.map_miss_probability < 0.5:
         raise ValueError(f"--map-miss-probability must lie in (0, 0.5), got {args.map_miss_probability}")
-    for option, value in (("--revisit-after", args.revisit_after), ("--footprint-padding", args.footprint_padding)):
+    for option, value in (
+        ("--revisit-after", args.revisit_after),
+        ("--footprint-padding", args.footprint_padding),
+        ("--map-hit-offset", args.map_hit_offset),
+    ):
         if not (math.isfinite(value) and value >= 0):
             raise ValueError(f"{option} must be a finite number >= 0, got {value}")
 
@@ -187,6 +198,7 @@ def run(args: argparse.Namespace) -> int:
         slam_params=args.slam_params,
         map_range=args.map_range,
         map_miss_probability=args.map_miss_probability,
+        map_hit_offset=args.map_hit_offset,
         wall_heading=args.wall_heading == "on",
         revisit_after=args.revisit_after,
         low_obstacles=args.low_obstacles == "on",
