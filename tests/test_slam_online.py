@@ -332,6 +332,6 @@ def test_params_file_checks(tmp_path):
     assert float(occ.occupancy.l_occ) == pytest.approx(np.log(9.0)) and float(occ.occupancy.l_free) == pytest.approx(
         np.log(3.0 / 7.0)
     )
-    assert float(occ.occupancy.hit_offset) == 0.0  # slam.yaml's
+    assert float(occ.occupancy.hit_offset) == pytest.approx(0.025)  # slam.yaml's: half a cell
     occ = slam_config(values | {"occupancy_hit_offset": 0.02}, GRID, "off")[1]
     assert float(occ.occupancy.hit_offset) == pytest.approx(0.02)
