@@ -19,7 +19,7 @@ depthimage_to_laserscan's), a 1-row band, and a 5-row band reduced by its median
   the 1-row scans out to 4 m (what exploration maps), at the true laser poses and at the leg-inertial
   odometry's: precision, in-view IoU and recall, and `free seen`, the share of the true free cells that
   the rays from the true path crossed which the map calls free (below occupancy 0.196; what exploration's
-  coverage counts). Mean over robots. With --hit-offsets, each model's maps for each `occupancy_hit_offset`
+  coverage counts). Mean over robots. With --hit-offsets, each model's maps for each hit offset
   (a return's end cell taken that far beyond it along the ray, m).
 """
 

@@ -313,8 +313,8 @@ def test_params_file_checks(tmp_path):
         ("robust_loop_edges: 2\n", "0 or 1"),
         ("occupancy_miss_probability: 0.5\n", "occupancy_hit_probability must lie in"),
         ("occupancy_hit_probability: 0.3\n", "occupancy_hit_probability must lie in"),
-        ("occupancy_hit_offset: 0.06\n", "occupancy_hit_offset must not exceed resolution"),
-        ("occupancy_hit_offset: -0.01\n", "out of range"),
+        ("occupancy_hit_offset_cells: 1.5\n", "out of range"),
+        ("occupancy_hit_offset_cells: -0.1\n", "out of range"),
     ]:
         p.write_text(text)
         with pytest.raises(ValueError, match=words):
@@ -332,6 +332,6 @@ def test_params_file_checks(tmp_path):
     assert float(occ.occupancy.l_occ) == pytest.approx(np.log(9.0)) and float(occ.occupancy.l_free) == pytest.approx(
         np.log(3.0 / 7.0)
     )
-    assert float(occ.occupancy.hit_offset) == pytest.approx(0.025)  # slam.yaml's: half a cell
-    occ = slam_config(values | {"occupancy_hit_offset": 0.02}, GRID, "off")[1]
-    assert float(occ.occupancy.hit_offset) == pytest.approx(0.02)
+    assert float(occ.occupancy.hit_offset) == pytest.approx(0.5 * GRID.resolution)  # slam.yaml's: half a cell, in m
+    occ = slam_config(values | {"occupancy_hit_offset_cells": 0.2}, GRID, "off")[1]
+    assert float(occ.occupancy.hit_offset) == pytest.approx(0.2 * GRID.resolution)

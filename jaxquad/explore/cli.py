@@ -34,11 +34,11 @@ def add_loop_arguments(parser: argparse.ArgumentParser) -> None:
         f"(default {c.map_miss_probability})",
     )
     parser.add_argument(
-        "--map-hit-offset",
+        "--map-hit-offset-cells",
         type=float,
-        default=c.map_hit_offset,
-        help="a return marks the map cell this far beyond it along the ray, m, 0 to one cell, in place of the SLAM "
-        f"file's (default {c.map_hit_offset:g}: half a cell, the cell whose centre is behind the face)",
+        default=c.map_hit_offset_cells,
+        help="a return marks the map cell this many cells beyond it along the ray, 0-1, in place of the SLAM "
+        f"file's (default {c.map_hit_offset_cells:g}: the cell whose centre is behind the face it hit)",
     )
     parser.add_argument(
         "--wall-heading",
@@ -79,11 +79,9 @@ def check_loop_arguments(args: argparse.Namespace) -> None:
 
     if not 0.0 < args.map_miss_probability < 0.5:
         raise ValueError(f"--map-miss-probability must lie in (0, 0.5), got {args.map_miss_probability}")
-    for option, value in (
-        ("--revisit-after", args.revisit_after),
-        ("--footprint-padding", args.footprint_padding),
-        ("--map-hit-offset", args.map_hit_offset),
-    ):
+    if not 0.0 <= args.map_hit_offset_cells <= 1.0:
+        raise ValueError(f"--map-hit-offset-cells must lie in [0, 1], got {args.map_hit_offset_cells}")
+    for option, value in (("--revisit-after", args.revisit_after), ("--footprint-padding", args.footprint_padding)):
         if not (math.isfinite(value) and value >= 0):
             raise ValueError(f"{option} must be a finite number >= 0, got {value}")
 
@@ -198,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
         slam_params=args.slam_params,
         map_range=args.map_range,
         map_miss_probability=args.map_miss_probability,
-        map_hit_offset=args.map_hit_offset,
+        map_hit_offset_cells=args.map_hit_offset_cells,
         wall_heading=args.wall_heading == "on",
         revisit_after=args.revisit_after,
         low_obstacles=args.low_obstacles == "on",

@@ -61,11 +61,11 @@ class ExploreConfig:
     # crossing scans (0.35 needs three), and cells seen from few nodes near the walls become free. 100 Go2 runs in the
     # house: coverage 0.896 -> 0.919, runs with 95 % of the clear cells 29 -> 57 (README, exploration).
     map_miss_probability: float = 0.3
-    # m: a return marks the map cell this far beyond it along the ray, in place of the SLAM file's
-    # `occupancy_hit_offset`. Half a cell (0.025 m) marks the cell whose centre is behind a box's face and leaves the
-    # one in front, which the true map calls free, to the ray. 100 Go2 runs in the house, 600 s: coverage 0.928 ->
-    # 0.942, runs at 95 % 1 -> 44 (README, exploration).
-    map_hit_offset: float = 0.025
+    # Cells (0-1): a return marks the map cell this far beyond it along the ray, in place of the SLAM file's
+    # `occupancy_hit_offset_cells`. Half a cell marks the cell whose centre is behind a box's face and leaves the one
+    # in front, which the true map calls free, to the ray. 100 Go2 runs in the house, 600 s: coverage 0.928 -> 0.942,
+    # runs at 95 % 1 -> 44; a whole cell 0.949 and 71 runs, with walls drawn deeper than they are (README, exploration).
+    map_hit_offset_cells: float = 0.5
     # The full variant's SLAM takes heading priors from the walls' directions (`kernels.wall_heading`), in place of the
     # SLAM file's `wall_heading`; the baseline's never does. 100 Go2 runs, H200: warehouse 240 s lost 11 -> 3, SLAM
     # position error at 4 min 0.216 -> 0.117 m (median); house 600 s coverage 0.918 against 0.919, runs with 95 % of
@@ -99,11 +99,13 @@ class ExploreConfig:
         for name in ("seconds", "spin_rate", "finish_time", "map_range"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
-        for name in ("revisit_after", "footprint_padding", "map_hit_offset"):  # revisit_after 0: never
+        for name in ("revisit_after", "footprint_padding"):  # revisit_after 0: never
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {getattr(self, name)}")
         if not 0.0 < self.map_miss_probability < 0.5:
             raise ValueError(f"map_miss_probability must lie in (0, 0.5), got {self.map_miss_probability}")
+        if not 0.0 <= self.map_hit_offset_cells <= 1.0:
+            raise ValueError(f"map_hit_offset_cells must lie in [0, 1], got {self.map_hit_offset_cells}")
         if self.chunk_ticks % REPLAN_TICKS:
             raise ValueError(f"chunk_ticks must be a multiple of {REPLAN_TICKS}, got {self.chunk_ticks}")
         self.slam_values()  # reads and checks the SLAM file now, before any heavy work
@@ -122,19 +124,14 @@ class ExploreConfig:
 
     def slam_values(self) -> dict:
         """The SLAM parameters, with node slots for a node every `minimum_time_interval` of the run, the map's
-        range at most `map_range`, its miss probability `map_miss_probability`, its hit offset `map_hit_offset`, and
-        wall-heading priors for the full variant when `wall_heading`."""
+        range at most `map_range`, its miss probability `map_miss_probability`, its hit offset
+        `map_hit_offset_cells`, and wall-heading priors for the full variant when `wall_heading`."""
         values = slam.load_params(self.slam_params)
         nodes = math.ceil(self.seconds / max(values["minimum_time_interval"], 0.1)) + 2
         nodes = max(values["node_capacity"] if self.slam_params else 0, nodes)
-        if self.map_hit_offset > values["resolution"]:
-            raise ValueError(
-                f"map_hit_offset (--map-hit-offset) must not exceed the map's resolution, {values['resolution']} m,"
-                f" got {self.map_hit_offset}"
-            )
         return values | {
             "node_capacity": nodes,
-            "occupancy_hit_offset": self.map_hit_offset,
+            "occupancy_hit_offset_cells": self.map_hit_offset_cells,
             "max_laser_range": min(values["max_laser_range"], self.map_range),
             "occupancy_miss_probability": self.map_miss_probability,
             "wall_heading": int(self.wall_heading and self.variant == "full"),

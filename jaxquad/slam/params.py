@@ -39,6 +39,7 @@ _FRACTION = (
     "loop_match_minimum_response_coarse",
     "loop_match_minimum_response_fine",
     "loop_ambiguity_ratio",
+    "occupancy_hit_offset_cells",
     "wall_heading_min_quality",
 )
 _MAY_BE_ZERO = (
@@ -53,7 +54,7 @@ _MAY_BE_ZERO = (
     *_SWITCHES,
     "wall_heading_min_quality",
     "wall_heading_variance_scale",
-    "occupancy_hit_offset",
+    "occupancy_hit_offset_cells",
 )
 
 
@@ -107,8 +108,6 @@ def load_params(path: str | os.PathLike | None = None, laser: bool = False) -> d
             f"params file {source}: occupancy_hit_probability must lie in (0.5, 1) and occupancy_miss_probability"
             " in (0, 0.5)"
         )
-    if values["occupancy_hit_offset"] > values["resolution"]:
-        raise ValueError(f"params file {source}: occupancy_hit_offset must not exceed resolution (one cell)")
     if values["loop_chain_scans"] < 1 or values["coarse_angle_resolution"] > values["coarse_search_angle_offset"]:
         raise ValueError(f"params file {source}: coarse_angle_resolution must not exceed coarse_search_angle_offset")
     return values
@@ -170,7 +169,7 @@ def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=
             l_free=f(_logit(v["occupancy_miss_probability"])),
             l_occ=f(_logit(v["occupancy_hit_probability"])),
             range_max=f(v["max_laser_range"]),
-            hit_offset=f(v["occupancy_hit_offset"]),
+            hit_offset=f(v["occupancy_hit_offset_cells"] * grid.resolution),
         ),
         solver=SolverParams(robust_width=f(v["robust_width"]), max_iterations=jnp.asarray(v["solver_max_iterations"])),
         T_base_laser=f(T_base_laser),
