@@ -2,7 +2,7 @@
 what the map's inverse sensor model makes of the scans.
 
     python experiments/scan_band.py [--robot go2] [--world house] [--robots 2] [--seconds 40] [--seed 0]
-        [--map-models 0.7/0.4 0.8/0.35 0.8/0.3] [--hit-offsets 0 0.025 0.05]
+        [--map-models 0.7/0.4 0.8/0.35 0.8/0.3] [--hit-offsets 0 0.5 1]
 
 It simulates a fleet with depth (aggressive gait, in memory), runs the estimator with true contacts,
 and slices stabilized scans three ways: a 5-row band reduced by its minimum (the paper's rule, ROS
@@ -20,7 +20,7 @@ depthimage_to_laserscan's), a 1-row band, and a 5-row band reduced by its median
   odometry's: precision, in-view IoU and recall, and `free seen`, the share of the true free cells that
   the rays from the true path crossed which the map calls free (below occupancy 0.196; what exploration's
   coverage counts). Mean over robots. With --hit-offsets, each model's maps for each hit offset
-  (a return's end cell taken that far beyond it along the ray, m).
+  (a return's end cell taken that many cells beyond it along the ray; slam.yaml's `occupancy_hit_offset_cells`).
 """
 
 from __future__ import annotations
@@ -70,12 +70,12 @@ def main() -> int:
         nargs="+",
         type=float,
         default=[0.0],
-        metavar="M",
-        help="with --map-models: the hit offsets to compare, m, 0 to one cell (default 0)",
+        metavar="CELLS",
+        help="with --map-models: the hit offsets to compare, in cells, 0-1 (default 0)",
     )
     args = p.parse_args()
-    if not all(0.0 <= h <= 0.05 for h in args.hit_offsets):
-        p.error(f"--hit-offsets must lie in [0, 0.05] m (one cell), got {args.hit_offsets}")
+    if not all(0.0 <= h <= 1.0 for h in args.hit_offsets):
+        p.error(f"--hit-offsets must lie in [0, 1] cells, got {args.hit_offsets}")
     if args.robots < 1 or not args.seconds > 0:
         p.error("--robots must be >= 1 and --seconds positive")
     try:
@@ -160,24 +160,34 @@ def _map_models(models, offsets, truth, spec, poses: dict, median_scans, row_sca
     logit = lambda q: jnp.asarray(math.log(q / (1.0 - q)))  # noqa: E731
     true_free = (truth.grid >= 0) & (truth.grid < 100 * FREE_THRESH)
     print(
-        "\n| scans | map range m | hit / miss | hit offset m | poses | precision | IoU in view | recall in view "
+        "\n| scans | map range m | hit / miss | hit offset cells | poses | precision | IoU in view | recall in view "
         "| free seen |"
     )
     print("|---|---:|---|---:|---|---:|---:|---:|---:|")
     for label, (ranges, bearings), map_range in (("5 rows, median", median_scans, 8.0), ("1 row", row_scans, 4.0)):
         n = ranges.shape[0]
         in_view = [cells_in_view(truth, poses["true"][i], bearings, map_range) for i in range(n)]
-        crossed = None  # the true free cells that rays from the true path crossed: the same for every model
+        # The true free cells that rays from the true path crossed (with no hit offset): one set for every model.
+        crossed = true_free & np.asarray(
+            fleet_maps(
+                spec,
+                OccupancyParams(range_max=jnp.asarray(map_range)),
+                jnp.asarray(poses["true"], jnp.float32),
+                jnp.asarray(ranges),
+                jnp.asarray(bearings),
+            ).observed
+        )
         for (hit, miss), offset in ((m, o) for m in models for o in offsets):
             params = OccupancyParams(
-                l_free=logit(miss), l_occ=logit(hit), range_max=jnp.asarray(map_range), hit_offset=jnp.asarray(offset)
+                l_free=logit(miss),
+                l_occ=logit(hit),
+                range_max=jnp.asarray(map_range),
+                hit_offset=jnp.asarray(offset * spec.resolution),
             )
             for kind, laser in poses.items():
                 grids = fleet_maps(
                     spec, params, jnp.asarray(laser, jnp.float32), jnp.asarray(ranges), jnp.asarray(bearings)
                 )
-                if crossed is None:
-                    crossed = true_free & np.asarray(grids.observed)
                 rows = []
                 for i in range(n):
                     occ = to_occupancy_map(spec, jax.tree.map(lambda a, i=i: a[i], grids))
@@ -188,8 +198,7 @@ def _map_models(models, offsets, truth, spec, poses: dict, median_scans, row_sca
                 m = np.mean(rows, 0)
                 print(
                     f"| {label} | {map_range:g} | {hit:g} / {miss:g} | {offset:g} | {kind} | {m[0]:.3f} | {m[1]:.3f} "
-                    f"| {m[2]:.3f} "
-                    f"| {m[3]:.3f} |",
+                    f"| {m[2]:.3f} | {m[3]:.3f} |",
                     flush=True,
                 )
 

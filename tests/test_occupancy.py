@@ -100,6 +100,16 @@ def test_hit_offset_moves_the_end_cell_along_the_ray():
         ref_delta, ref_touched = _evidence_np(SPEC, pose, ranges, bearings, 0.2, 4.0, l_occ, l_free, offset)
         assert np.array_equal(np.asarray(touched), ref_touched), offset
         np.testing.assert_allclose(np.asarray(delta), ref_delta, atol=1e-5)
+    # Returns within the offset of the grid's max_range end at max_range (the traversal's length), still hits.
+    far = OccupancyParams(range_min=jnp.asarray(0.2), range_max=jnp.asarray(6.0), hit_offset=jnp.asarray(0.1))
+    pose = np.array([-3.95, -2.95, 0.0], np.float32)  # a corner of the grid, the rays into it
+    bearings = np.linspace(0.0, np.pi / 2, 181).astype(np.float32)
+    ranges = rng.uniform(4.9, 5.0, 181).astype(np.float32)
+    delta, touched = _evidence(SPEC, far, jnp.asarray(pose), jnp.asarray(ranges), jnp.asarray(bearings))
+    ref_delta, ref_touched = _evidence_np(SPEC, pose, ranges, bearings, 0.2, SPEC.max_range, l_occ, l_free, 0.1)
+    assert np.array_equal(np.asarray(touched), ref_touched)
+    np.testing.assert_allclose(np.asarray(delta), ref_delta, atol=1e-5)
+    assert (ref_delta > 0).sum() > 50  # the hits are kept
     # Square-on: the sensor at x = -3.95 (column 0's centre) looking along +x; column 40 spans x in [0, 0.1),
     # its centre at 0.05. A face at x = 0.02 puts that centre inside the obstacle, a face at x = 0.08 in front.
     plain = OccupancyParams(range_min=jnp.asarray(0.2), range_max=jnp.asarray(4.5))

@@ -335,3 +335,11 @@ def test_params_file_checks(tmp_path):
     assert float(occ.occupancy.hit_offset) == pytest.approx(0.5 * GRID.resolution)  # slam.yaml's: half a cell, in m
     occ = slam_config(values | {"occupancy_hit_offset_cells": 0.2}, GRID, "off")[1]
     assert float(occ.occupancy.hit_offset) == pytest.approx(0.2 * GRID.resolution)
+    assert laser["occupancy_hit_offset_cells"] == 0.0  # slam_toolbox's for 2D lidars
+    # Exploration's own offset replaces the file's, whatever the file holds.
+    from jaxquad.explore import ExploreConfig
+
+    assert ExploreConfig(map_hit_offset_cells=0.0).slam_values()["occupancy_hit_offset_cells"] == 0.0
+    assert ExploreConfig(map_hit_offset_cells=1.0).slam_values()["occupancy_hit_offset_cells"] == 1.0
+    with pytest.raises(ValueError, match="map_hit_offset_cells"):
+        ExploreConfig(map_hit_offset_cells=1.5)
