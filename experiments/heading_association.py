@@ -14,6 +14,10 @@ Variants of the weights (the map built with the same weights as the scan):
   unit              every straight return weighs 1 (nearer returns no longer dominate)
   unit, log map     as unit, and the map's direction density compressed to log(1 + 100 d / max d) before the
                     search (a direction seen by few nodes counts nearly as much as one seen by many)
+  inverse-variance, halves within 2 deg
+                    the SLAM's weights, and a measurement left out when the scan's near and far halves (split
+                    at the median range of its straight returns) disagree by more than 2 deg
+                    (`wall_heading_halves_tolerance`, `kernels.wall_heading.halves_disagreement`)
 
 It prints the command, the machine and one Markdown row per variant: nodes measured, measurements reaching
 `wall_heading_min_quality` (the only ones the SLAM would use), and their error's rms, median and counts beyond 1,
@@ -31,7 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-VARIANTS = ("inverse-variance", "unit", "unit, log map")
+VARIANTS = ("inverse-variance", "unit", "unit, log map", "inverse-variance, halves within 2 deg")
+HALVES_TOLERANCE_DEG = 2.0
 LOG_GAIN = 100.0  # log(1 + LOG_GAIN d / max d)
 
 
@@ -83,8 +88,15 @@ def errors_deg(x: dict, truths: np.ndarray, every: float, skip: float) -> dict:
     import jax.numpy as jnp
 
     from jaxquad.explore.fleet import ExploreConfig
-    from jaxquad.kernels.wall_heading import direction_spectrum, measure_heading, rotate_spectrum, wall_directions
+    from jaxquad.kernels.wall_heading import (
+        direction_spectrum,
+        halves_disagreement,
+        measure_heading,
+        rotate_spectrum,
+        wall_directions,
+    )
     from jaxquad.slam import grid_spec, slam_config
+    from jaxquad.slam.heading import HALVES_MIN_QUALITY
 
     base = ExploreConfig(world="warehouse").slam_values()
     grid = grid_spec((-0.5, -0.5, 15.5, 20.5), base["resolution"], base["max_laser_range"])
@@ -96,6 +108,9 @@ def errors_deg(x: dict, truths: np.ndarray, every: float, skip: float) -> dict:
     first = int(np.searchsorted(nodes * dt, skip))
     directions = jax.jit(jax.vmap(lambda r, v: wall_directions(hs, hp, r, bearings, v)))
     measure = jax.jit(jax.vmap(lambda s, m: measure_heading(hs, hp, s, m)))
+    split = jax.jit(
+        jax.vmap(lambda d, w, r, h, m: halves_disagreement(hs, hp, d, w, r, h, m, jnp.float32(HALVES_MIN_QUALITY)))
+    )
 
     @jax.jit
     def spectra(d, w, heading):
@@ -110,11 +125,17 @@ def errors_deg(x: dict, truths: np.ndarray, every: float, skip: float) -> dict:
         d, w = directions(ranges, jnp.isfinite(ranges) & (ranges > 0))
         heading = jnp.asarray(truths[r, nodes, 2], jnp.float32)
         for variant in VARIANTS:
-            scans, maps, totals = spectra(d, w if variant == "inverse-variance" else (w > 0).astype(w.dtype), heading)
+            scans, maps, totals = spectra(
+                d, w if variant.startswith("inverse-variance") else (w > 0).astype(w.dtype), heading
+            )
             if variant == "unit, log map":
                 maps = log_compressed(maps, totals, float(hp.kernel_std))
             m = measure(scans, maps)
-            out[variant].append(np.stack([np.rad2deg(np.asarray(m.error)), np.asarray(m.quality)], -1)[first:])
+            quality = np.asarray(m.quality)
+            if variant.endswith("halves within 2 deg"):  # left out: quality 0, below any minimum
+                apart = np.rad2deg(np.asarray(split(d, w, ranges, heading, maps)))
+                quality = np.where(apart <= HALVES_TOLERANCE_DEG, quality, 0.0)
+            out[variant].append(np.stack([np.rad2deg(np.asarray(m.error)), quality], -1)[first:])
     return {v: np.concatenate(rows) for v, rows in out.items()}
 
 

@@ -22,6 +22,11 @@ reference scan, so its error does not add up from node to node.
   gives the heading error, and the correlation at the peak over the two spectra's norms (Cauchy-Schwarz:
   at most 1) its quality: 0 when the peak lies on the search's edge. A scan whose walls run in no mapped
   direction has a low quality.
+- `halves_disagreement`: the scan measured twice, its straight returns split at their median range, and how far
+  the near half's error lies from the far half's. A box turned a few degrees off the walls, seen in front of a
+  wall, is lined up with the mapped wall direction by its own (near, precise, heavily weighted) returns while the
+  wall behind it measures the heading as it is: the halves disagree by about the box's turn. Such a scan's whole
+  measurement follows the box, with a high quality, and so does the heading if it is used.
 
 Directions of the map repeat with its walls' symmetry (every 90 deg in a rectilinear building), so the
 search must stay well inside that period: the heading must already be known to better than it.
@@ -152,3 +157,30 @@ def measure_heading(
     inside = (peak > 0) & (peak < spec.steps - 1) & (norm > 0)
     quality = jnp.where(inside, corr[i] / jnp.where(norm > 0, norm, 1.0), 0.0)
     return HeadingMeasurement(error=-best, quality=quality)
+
+
+def halves_disagreement(
+    spec: HeadingSpec,
+    params: HeadingParams,
+    direction: Float[Array, " b"],
+    weight: Float[Array, " b"],
+    ranges: Float[Array, " b"],
+    heading: Float[Array, ""],
+    reference: Float[Array, "m 2"],
+    min_quality: Float[Array, ""],
+) -> Float[Array, ""]:
+    """|near half's error - far half's error| (rad) of a scan measured against `reference`, its straight returns
+    (weight > 0) split at their median range; 0 when either half measures below `min_quality` (nothing to
+    compare). `direction`, `weight` from `wall_directions`, in the sensor frame at `heading`."""
+    straight = weight > 0
+    median = jnp.nanmedian(jnp.where(straight, ranges, jnp.nan))
+    near = straight & (ranges < median)
+    errors, qualities = [], []
+    for half in (near, straight & ~near):
+        m = measure_heading(
+            spec, params, direction_spectrum(spec, direction, jnp.where(half, weight, 0.0), heading), reference
+        )
+        errors.append(m.error)
+        qualities.append(m.quality)
+    both = (qualities[0] >= min_quality) & (qualities[1] >= min_quality)
+    return jnp.where(both, jnp.abs(errors[0] - errors[1]), 0.0)

@@ -364,3 +364,70 @@ def test_node_update_gain_gate_and_edge():
         d, w = directions(jnp.asarray(ranges[None]))
         base = np.asarray(spectrum(d, w, jnp.asarray([laser], jnp.float32))[0])
         np.testing.assert_allclose(local, base, rtol=1e-4, atol=1e-4 * np.abs(base).max())
+
+
+# A sensor looking into the bare room's corner, and an 0.8 m crate 1.4 m ahead of it, both faces in view.
+CORNER_VIEW = np.array([[0.0, 0.0, np.pi / 4]])
+
+
+def _crate(angle_deg: float) -> np.ndarray:
+    """The crate turned by `angle_deg` off the walls."""
+    centre = np.array([0.283, 1.414])
+    return _rotated(box(-0.4, -0.4, 0.4, 0.4), np.deg2rad(angle_deg)) + np.tile(centre, 2)
+
+
+def test_near_and_far_halves_disagree_by_a_turned_crates_angle():
+    """A scan of the bare room's corner with a crate in front of it, at the true heading, against the bare room's
+    directions: the near half (the crate) lines its faces up with the walls and the far half (the corner) measures
+    the true heading, so the halves disagree by the crate's turn (the whole scan follows the crate, at a quality of
+    0.96); a crate square to the walls, or none, gives agreement. `slam.heading.update` leaves out a scan whose
+    halves disagree beyond its tolerance, and uses it without the test."""
+    import equinox as eqx
+
+    from jaxquad.kernels.wall_heading import halves_disagreement
+    from jaxquad.slam import SlamParams, SlamSpec, grid_spec
+    from jaxquad.slam.heading import update
+    from jaxquad.slam.state import SlamInputs, init
+
+    directions, _, _ = _jit()
+    bare = box(-4, -3, 4, 3)
+    reference = jnp.asarray(_map_spectrum(bare, POSES), jnp.float32)
+    heading = jnp.asarray(CORNER_VIEW[0, 2], jnp.float32)
+    split = jax.jit(lambda d, w, r: halves_disagreement(SPEC, PARAMS, d, w, r, heading, reference, jnp.asarray(0.3)))
+    for angle, lo, hi in ((6.6, 6.0, 7.2), (0.0, 0.0, 0.3), (None, 0.0, 0.3)):
+        world = bare if angle is None else np.concatenate([bare, _crate(angle)])
+        ranges = jnp.asarray(_scans(world, CORNER_VIEW)[0])
+        d, w = directions(ranges[None])
+        apart = np.rad2deg(float(split(d[0], w[0], ranges)))
+        assert lo <= apart <= hi, (angle, apart)
+
+    # The SLAM's node update: the turned crate's scan is used without the test and left out with a 2 deg one.
+    spec = SlamSpec(grid=grid_spec((-5.0, -4.0, 5.0, 4.0), 0.05, 6.0), nodes=8, wall_heading=True)
+    params = SlamParams(T_base_laser=jnp.zeros(3, jnp.float32))
+    state = init(spec, params, jnp.asarray(BEARINGS, jnp.float32))
+    state = eqx.tree_at(
+        lambda s: (s.node_directions, s.graph.node_mask, s.node_heading_var),
+        state,
+        (
+            state.node_directions.at[0].set(reference),
+            state.graph.node_mask.at[0].set(True),
+            jnp.full_like(state.node_heading_var, np.deg2rad(5.0) ** 2),  # a heading known to 5 deg: the gate passes
+        ),
+    )
+    ranges = jnp.asarray(_scans(np.concatenate([bare, _crate(6.6)]), CORNER_VIEW)[0])
+    inp = SlamInputs(
+        t=jnp.asarray(0.0),
+        odom=jnp.zeros(3),
+        ranges=ranges,
+        valid=ranges > 0,
+        lo_pose=jnp.zeros(3),
+        lo_twist=jnp.zeros(3),
+        lo_twist_cov=jnp.zeros((3, 3)),
+        lo_valid=jnp.asarray(True),
+    )
+    for tolerance, expect_used in ((0.0, True), (np.deg2rad(2.0), False)):
+        p = eqx.tree_at(lambda q: q.heading_halves_tolerance, params, jnp.asarray(tolerance, jnp.float32))
+        out = update(
+            spec, p, state, jnp.asarray(CORNER_VIEW[0], jnp.float32), jnp.asarray(0.0), inp, jnp.asarray(False)
+        )
+        assert bool(out[5]) == expect_used, tolerance

@@ -54,6 +54,7 @@ _MAY_BE_ZERO = (
     *_SWITCHES,
     "wall_heading_min_quality",
     "wall_heading_variance_scale",
+    "wall_heading_halves_tolerance",
     "occupancy_hit_offset_cells",
 )
 
@@ -190,6 +191,7 @@ def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=
         heading_variance_scale=f(v["wall_heading_variance_scale"]),
         heading_min_std=f(v["wall_heading_min_std"]),
         heading_min_quality=f(v["wall_heading_min_quality"]),
+        heading_halves_tolerance=f(v["wall_heading_halves_tolerance"]),
         heading_max_chi2=f(v["wall_heading_max_chi2"]),
         heading_gate_with_r=jnp.asarray(v["wall_heading_gate_with_r"] == 1),
         loop_chain_priors=jnp.asarray(v["wall_heading_in_loop_test"] == 1),

@@ -71,6 +71,7 @@ class SlamParams(eqx.Module):
     heading_min_quality: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.5))  # correlation quality, 0-1
     heading_max_chi2: Float[Array, ""] = eqx.field(default_factory=lambda: _f(10.83))  # chi-square, 1 dof
     heading_gate_with_r: Bool[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(False))  # R in the gate too
+    heading_halves_tolerance: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.0))  # rad; 0: no test
     # the loop test's chain filtered by the wall-heading priors (jaxquad.slam.consistency)
     loop_chain_priors: Bool[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(True))
 
