@@ -35,8 +35,9 @@ from pathlib import Path
 
 import numpy as np
 
-VARIANTS = ("inverse-variance", "unit", "unit, log map", "inverse-variance, halves within 2 deg")
 HALVES_TOLERANCE_DEG = 2.0
+HALVES = f"inverse-variance, halves within {HALVES_TOLERANCE_DEG:g} deg"
+VARIANTS = ("inverse-variance", "unit", "unit, log map", HALVES)
 LOG_GAIN = 100.0  # log(1 + LOG_GAIN d / max d)
 
 
@@ -132,7 +133,7 @@ def errors_deg(x: dict, truths: np.ndarray, every: float, skip: float) -> dict:
                 maps = log_compressed(maps, totals, float(hp.kernel_std))
             m = measure(scans, maps)
             quality = np.asarray(m.quality)
-            if variant.endswith("halves within 2 deg"):  # left out: quality 0, below any minimum
+            if variant == HALVES:  # left out: quality 0, below any minimum
                 apart = np.rad2deg(np.asarray(split(d, w, ranges, heading, maps)))
                 quality = np.where(apart <= HALVES_TOLERANCE_DEG, quality, 0.0)
             out[variant].append(np.stack([np.rad2deg(np.asarray(m.error)), quality], -1)[first:])

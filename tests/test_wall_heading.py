@@ -366,7 +366,8 @@ def test_node_update_gain_gate_and_edge():
         np.testing.assert_allclose(local, base, rtol=1e-4, atol=1e-4 * np.abs(base).max())
 
 
-# A sensor looking into the bare room's corner, and an 0.8 m crate 1.4 m ahead of it, both faces in view.
+# A sensor looking into the bare room's corner, and an 0.8 m crate 1.4 m away to the left of its view axis, two faces
+# in view.
 CORNER_VIEW = np.array([[0.0, 0.0, np.pi / 4]])
 
 
@@ -385,7 +386,7 @@ def test_near_and_far_halves_disagree_by_a_turned_crates_angle():
     import equinox as eqx
 
     from jaxquad.kernels.wall_heading import halves_disagreement
-    from jaxquad.slam import SlamParams, SlamSpec, grid_spec
+    from jaxquad.slam import SlamParams, SlamSpec, grid_spec, load_params, slam_config
     from jaxquad.slam.heading import update
     from jaxquad.slam.state import SlamInputs, init
 
@@ -402,8 +403,13 @@ def test_near_and_far_halves_disagree_by_a_turned_crates_angle():
         assert lo <= apart <= hi, (angle, apart)
 
     # The SLAM's node update: the turned crate's scan is used without the test and left out with a 2 deg one.
-    spec = SlamSpec(grid=grid_spec((-5.0, -4.0, 5.0, 4.0), 0.05, 6.0), nodes=8, wall_heading=True)
-    params = SlamParams(T_base_laser=jnp.zeros(3, jnp.float32))
+    grid = grid_spec((-5.0, -4.0, 5.0, 4.0), 0.05, 6.0)
+    spec = SlamSpec(grid=grid, nodes=8, wall_heading=True)
+    laser = 0.3  # the laser turned off the base: the halves are measured at the sensor's heading
+    params = SlamParams(T_base_laser=jnp.asarray([0.0, 0.0, laser], jnp.float32))
+    assert float(slam_config(load_params(), grid, "off")[1].heading_halves_tolerance) == 0.0  # slam.yaml: off
+    on = slam_config(load_params() | {"wall_heading_halves_tolerance": 0.03}, grid, "off")[1]
+    assert float(on.heading_halves_tolerance) == np.float32(0.03)
     state = init(spec, params, jnp.asarray(BEARINGS, jnp.float32))
     state = eqx.tree_at(
         lambda s: (s.node_directions, s.graph.node_mask, s.node_heading_var),
@@ -428,6 +434,12 @@ def test_near_and_far_halves_disagree_by_a_turned_crates_angle():
     for tolerance, expect_used in ((0.0, True), (np.deg2rad(2.0), False)):
         p = eqx.tree_at(lambda q: q.heading_halves_tolerance, params, jnp.asarray(tolerance, jnp.float32))
         out = update(
-            spec, p, state, jnp.asarray(CORNER_VIEW[0], jnp.float32), jnp.asarray(0.0), inp, jnp.asarray(False)
+            spec,
+            p,
+            state,
+            jnp.asarray(CORNER_VIEW[0] - [0, 0, laser], jnp.float32),
+            jnp.asarray(0.0),
+            inp,
+            jnp.asarray(False),
         )
         assert bool(out[5]) == expect_used, tolerance

@@ -41,6 +41,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from jaxquad.kernels.control_flow import run_if
 from jaxquad.kernels.lie import wrap_angle
 from jaxquad.kernels.wall_heading import (
     direction_spectrum,
@@ -84,15 +85,20 @@ def update(
     scan = rotate_spectrum(spec.heading, local, pose[2])
     reference = map_spectrum(spec, state)
     meas = measure_heading(spec.heading, params.heading, scan, reference)
-    split = halves_disagreement(
-        spec.heading,
-        params.heading,
-        direction,
-        weight,
-        inp.ranges,
-        pose[2] + laser,
-        reference,
-        jnp.asarray(HALVES_MIN_QUALITY, reference.dtype),
+    # Two more measurements per node: only when the test is on.
+    split = run_if(
+        params.heading_halves_tolerance > 0,
+        lambda _: halves_disagreement(
+            spec.heading,
+            params.heading,
+            direction,
+            weight,
+            inp.ranges,
+            pose[2] + laser,
+            reference,
+            jnp.asarray(HALVES_MIN_QUALITY, reference.dtype),
+        ),
+        jnp.zeros((), reference.dtype),
     )
     R = params.heading_variance_scale / jnp.maximum(jnp.sum(weight), 1e-9) + params.heading_min_std**2
     chi2 = meas.error**2 / (var + jnp.where(params.heading_gate_with_r, R, params.heading_min_std**2))
