@@ -125,18 +125,17 @@ def errors_deg(x: dict, truths: np.ndarray, every: float, skip: float) -> dict:
         ranges = jnp.asarray(x["ranges"][r, nodes], jnp.float32)
         d, w = directions(ranges, jnp.isfinite(ranges) & (ranges > 0))
         heading = jnp.asarray(truths[r, nodes, 2], jnp.float32)
-        for variant in VARIANTS:
-            scans, maps, totals = spectra(
-                d, w if variant.startswith("inverse-variance") else (w > 0).astype(w.dtype), heading
-            )
+        for variant in VARIANTS[:3]:
+            scans, maps, totals = spectra(d, w if variant == "inverse-variance" else (w > 0).astype(w.dtype), heading)
             if variant == "unit, log map":
                 maps = log_compressed(maps, totals, float(hp.kernel_std))
             m = measure(scans, maps)
-            quality = np.asarray(m.quality)
-            if variant == HALVES:  # left out: quality 0, below any minimum
+            error, quality = np.rad2deg(np.asarray(m.error)), np.asarray(m.quality)
+            out[variant].append(np.stack([error, quality], -1)[first:])
+            if variant == "inverse-variance":  # the same measurements, left out (quality 0) where the halves disagree
                 apart = np.rad2deg(np.asarray(split(d, w, ranges, heading, maps)))
-                quality = np.where(apart <= HALVES_TOLERANCE_DEG, quality, 0.0)
-            out[variant].append(np.stack([np.rad2deg(np.asarray(m.error)), quality], -1)[first:])
+                kept = np.where(apart <= HALVES_TOLERANCE_DEG, quality, 0.0)
+                out[HALVES].append(np.stack([error, kept], -1)[first:])
     return {v: np.concatenate(rows) for v, rows in out.items()}
 
 

@@ -209,13 +209,12 @@ def _add_node(spec: SlamSpec, params: SlamParams, state: SlamState, pred, inp: S
         )
         z_h = _between(state.graph.poses[0], measured)  # the prior's information is on its heading alone
         state = eqx.tree_at(
-            lambda s: (s.node_heading_var, s.node_heading_info, s.node_directions, s.headings),
+            lambda s: (s.node_heading_var, s.node_heading_info, s.node_directions),
             state,
             (
                 state.node_heading_var.at[j].set(var),
                 state.node_heading_info.at[j].set(jnp.where(h_used, info_h[2, 2], 0.0)),
                 state.node_directions.at[j].set(local),
-                state.headings + h_used.astype(state.headings.dtype),
             ),
         )
 

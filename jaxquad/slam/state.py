@@ -115,7 +115,11 @@ class SlamState(eqx.Module):
     # (kernels.wall_heading; n_h = n with SlamSpec.wall_heading, else 0)
     node_heading_var: Float[Array, " n_h"]  # rad^2: variance of the node's heading in the map frame (heading filter)
     node_heading_info: Float[Array, " n_h"]  # 1/rad^2: information of the node's wall-heading prior (0: none used)
-    headings: Int[Array, ""]  # accepted wall-heading priors
+
+    @property
+    def headings(self) -> Int[Array, "*batch"]:
+        """Accepted wall-heading priors: the nodes holding one (per robot of a batched state)."""
+        return jnp.sum(self.node_heading_info > 0, axis=-1)
 
 
 class SlamOutput(eqx.Module):
@@ -169,5 +173,4 @@ def init(spec: SlamSpec, params: SlamParams, bearings: Float[Array, " b"]) -> Sl
         node_directions=jnp.zeros((n if spec.wall_heading else 0, spec.heading.harmonics, 2)),
         node_heading_var=jnp.zeros(n if spec.wall_heading else 0),
         node_heading_info=jnp.zeros(n if spec.wall_heading else 0),
-        headings=zero_i,
     )
