@@ -2,7 +2,7 @@
 what the map's inverse sensor model makes of the scans.
 
     python experiments/scan_band.py [--robot go2] [--world house] [--robots 2] [--seconds 40] [--seed 0]
-        [--map-models 0.7/0.4 0.8/0.35 0.8/0.3] [--hit-offsets 0 0.5 1]
+        [--map-models 0.7/0.4 0.8/0.35 0.8/0.3] [--hit-offsets 0 0.5 1] [--clamp-mins 0.1192 0.05] [--scan-every 1]
 
 It simulates a fleet with depth (aggressive gait, in memory), runs the estimator with true contacts,
 and slices stabilized scans three ways: a 5-row band reduced by its minimum (the paper's rule, ROS
@@ -20,7 +20,10 @@ depthimage_to_laserscan's), a 1-row band, and a 5-row band reduced by its median
   odometry's: precision, in-view IoU and recall, and `free seen`, the share of the true free cells that
   the rays from the true path crossed which the map calls free (below occupancy 0.196; what exploration's
   coverage counts). Mean over robots. With --hit-offsets, each model's maps for each hit offset
-  (a return's end cell taken that many cells beyond it along the ray; slam.yaml's `occupancy_hit_offset_cells`).
+  (a return's end cell taken that many cells beyond it along the ray; slam.yaml's `occupancy_hit_offset_cells`),
+  with --clamp-mins for each lower clamp of a cell's occupancy (`occupancy_clamp_min_probability`; the upper
+  stays OctoMap's 0.971), and with --scan-every N from every Nth depth frame (frames come at 31.5 Hz; the online
+  SLAM draws its map from its node scans, about 2 per second while the robot walks: N = 16)
 """
 
 from __future__ import annotations
@@ -73,7 +76,24 @@ def main() -> int:
         metavar="CELLS",
         help="with --map-models: the hit offsets to compare, in cells, 0-1 (default 0)",
     )
+    p.add_argument(
+        "--clamp-mins",
+        nargs="+",
+        type=float,
+        default=[1.0 / (1.0 + math.exp(2.0))],
+        metavar="P",
+        help="with --map-models: the lower clamps of a cell's occupancy to compare, 0-MISS (default 0.1192: OctoMap's)",
+    )
+    p.add_argument(
+        "--scan-every",
+        type=int,
+        default=1,
+        metavar="N",
+        help="with --map-models: maps from every Nth depth frame (default 1; 16: about the online SLAM's node rate)",
+    )
     args = p.parse_args()
+    if args.scan_every < 1:
+        p.error(f"--scan-every must be >= 1, got {args.scan_every}")
     if not all(0.0 <= h <= 1.0 for h in args.hit_offsets):
         p.error(f"--hit-offsets must lie in [0, 1] cells, got {args.hit_offsets}")
     if args.robots < 1 or not args.seconds > 0:
@@ -84,6 +104,8 @@ def main() -> int:
         p.error(f"--map-models takes HIT/MISS probabilities such as 0.8/0.35, got {args.map_models}")
     if any(len(m) != 2 or not (0.5 < m[0] < 1.0 and 0.0 < m[1] < 0.5) for m in models):
         p.error(f"--map-models: each HIT/MISS needs 0.5 < HIT < 1 and 0 < MISS < 0.5, got {args.map_models}")
+    if any(not 0.0 < c < m[1] for c in args.clamp_mins for m in models):
+        p.error(f"--clamp-mins must lie in (0, MISS) of every model, got {args.clamp_mins}")
     from jaxquad.estimate import estimate_log
     from jaxquad.estimate.laser import leg_laser_inputs, scan_ranges
     from jaxquad.kernels.lie import se2, xy_theta
@@ -146,11 +168,14 @@ def main() -> int:
     if models:
         T_odom = se2(jnp.asarray(x["odom"], jnp.float32)) @ se2(jnp.asarray(x["T_base_laser"], jnp.float32))
         poses = {"true": laser, "leg odometry": np.asarray(xy_theta(T_odom))}
-        _map_models(models, args.hit_offsets, truth, spec, poses, scans[KINDS[2][0]], scans[KINDS[1][0]])
+        every = slice(None, None, args.scan_every)
+        poses = {kind: laser_poses[:, every] for kind, laser_poses in poses.items()}
+        median_scans, row_scans = ((r[:, every], b) for r, b in (scans[KINDS[2][0]], scans[KINDS[1][0]]))
+        _map_models(models, args.hit_offsets, args.clamp_mins, truth, spec, poses, median_scans, row_scans)
     return 0
 
 
-def _map_models(models, offsets, truth, spec, poses: dict, median_scans, row_scans) -> None:
+def _map_models(models, offsets, clamp_mins, truth, spec, poses: dict, median_scans, row_scans) -> None:
     """The third table (module docstring): each model's maps at each kind of pose, for both scan uses."""
     from jaxquad.io.maps import FREE_THRESH
     from jaxquad.kernels.occupancy import OccupancyParams
@@ -160,10 +185,10 @@ def _map_models(models, offsets, truth, spec, poses: dict, median_scans, row_sca
     logit = lambda q: jnp.asarray(math.log(q / (1.0 - q)))  # noqa: E731
     true_free = (truth.grid >= 0) & (truth.grid < 100 * FREE_THRESH)
     print(
-        "\n| scans | map range m | hit / miss | hit offset cells | poses | precision | IoU in view | recall in view "
-        "| free seen |"
+        "\n| scans | map range m | hit / miss | hit offset cells | clamp min | poses | precision | IoU in view "
+        "| recall in view | free seen |"
     )
-    print("|---|---:|---|---:|---|---:|---:|---:|---:|")
+    print("|---|---:|---|---:|---:|---|---:|---:|---:|---:|")
     for label, (ranges, bearings), map_range in (("5 rows, median", median_scans, 8.0), ("1 row", row_scans, 4.0)):
         n = ranges.shape[0]
         in_view = [cells_in_view(truth, poses["true"][i], bearings, map_range) for i in range(n)]
@@ -177,10 +202,11 @@ def _map_models(models, offsets, truth, spec, poses: dict, median_scans, row_sca
                 jnp.asarray(bearings),
             ).observed
         )
-        for (hit, miss), offset in ((m, o) for m in models for o in offsets):
+        for (hit, miss), offset, clamp in ((m, o, c) for m in models for o in offsets for c in clamp_mins):
             params = OccupancyParams(
                 l_free=logit(miss),
                 l_occ=logit(hit),
+                l_min=logit(clamp),
                 range_max=jnp.asarray(map_range),
                 hit_offset=jnp.asarray(offset * spec.resolution),
             )
@@ -197,8 +223,8 @@ def _map_models(models, offsets, truth, spec, poses: dict, median_scans, row_sca
                     rows.append((s.precision, s.iou_in_view, s.recall_in_view, seen_free))
                 m = np.mean(rows, 0)
                 print(
-                    f"| {label} | {map_range:g} | {hit:g} / {miss:g} | {offset:g} | {kind} | {m[0]:.3f} | {m[1]:.3f} "
-                    f"| {m[2]:.3f} | {m[3]:.3f} |",
+                    f"| {label} | {map_range:g} | {hit:g} / {miss:g} | {offset:g} | {clamp:.4g} | {kind} | {m[0]:.3f} "
+                    f"| {m[1]:.3f} | {m[2]:.3f} | {m[3]:.3f} |",
                     flush=True,
                 )
 

@@ -315,6 +315,9 @@ def test_params_file_checks(tmp_path):
         ("occupancy_hit_probability: 0.3\n", "occupancy_hit_probability must lie in"),
         ("occupancy_hit_offset_cells: 1.5\n", "out of range"),
         ("occupancy_hit_offset_cells: -0.1\n", "out of range"),
+        ("occupancy_clamp_min_probability: 0.4\n", "occupancy_clamp_min_probability must lie in"),
+        ("occupancy_clamp_max_probability: 0.75\n", "occupancy_clamp_max_probability in"),
+        ("occupancy_clamp_max_probability: 1.0\n", "occupancy_clamp_max_probability in"),
     ]:
         p.write_text(text)
         with pytest.raises(ValueError, match=words):
@@ -328,6 +331,10 @@ def test_params_file_checks(tmp_path):
     occ = slam_config(values, GRID, "off")[1].occupancy
     assert float(occ.l_occ) == pytest.approx(float(OccupancyParams().l_occ), rel=1e-6)
     assert float(occ.l_free) == pytest.approx(float(OccupancyParams().l_free), rel=1e-6)
+    # slam.yaml's clamps are OctoMap's log-odds -2 and 3.5, the kernel's defaults, to float32.
+    assert float(occ.l_min) == float(OccupancyParams().l_min) and float(occ.l_max) == float(OccupancyParams().l_max)
+    occ = slam_config(values | {"occupancy_clamp_min_probability": 0.05}, GRID, "off")[1].occupancy
+    assert float(occ.l_min) == pytest.approx(np.log(0.05 / 0.95))
     occ = slam_config(values | {"occupancy_hit_probability": 0.9, "occupancy_miss_probability": 0.3}, GRID, "off")[1]
     assert float(occ.occupancy.l_occ) == pytest.approx(np.log(9.0)) and float(occ.occupancy.l_free) == pytest.approx(
         np.log(3.0 / 7.0)
@@ -339,6 +346,7 @@ def test_params_file_checks(tmp_path):
     # Exploration's own offset replaces the file's, whatever the file holds.
     from jaxquad.explore import ExploreConfig
 
+    assert ExploreConfig().slam_values()["occupancy_hit_offset_cells"] == 1.0  # exploration's default: a whole cell
     assert ExploreConfig(map_hit_offset_cells=0.0).slam_values()["occupancy_hit_offset_cells"] == 0.0
     assert ExploreConfig(map_hit_offset_cells=1.0).slam_values()["occupancy_hit_offset_cells"] == 1.0
     with pytest.raises(ValueError, match="map_hit_offset_cells"):

@@ -38,7 +38,7 @@ def add_loop_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=c.map_hit_offset_cells,
         help="a return marks the map cell this many cells beyond it along the ray, 0-1, in place of the SLAM "
-        f"file's (default {c.map_hit_offset_cells:g}: the cell whose centre is behind the face it hit)",
+        f"file's (default {c.map_hit_offset_cells:g}: also a face met obliquely leaves the cell in front of it free)",
     )
     parser.add_argument(
         "--wall-heading",

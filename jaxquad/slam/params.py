@@ -109,6 +109,14 @@ def load_params(path: str | os.PathLike | None = None, laser: bool = False) -> d
             f"params file {source}: occupancy_hit_probability must lie in (0.5, 1) and occupancy_miss_probability"
             " in (0, 0.5)"
         )
+    if not (
+        0.0 < values["occupancy_clamp_min_probability"] < values["occupancy_miss_probability"]
+        and values["occupancy_hit_probability"] < values["occupancy_clamp_max_probability"] < 1.0
+    ):
+        raise ValueError(
+            f"params file {source}: occupancy_clamp_min_probability must lie in (0, occupancy_miss_probability) and"
+            " occupancy_clamp_max_probability in (occupancy_hit_probability, 1)"
+        )
     if values["loop_chain_scans"] < 1 or values["coarse_angle_resolution"] > values["coarse_search_angle_offset"]:
         raise ValueError(f"params file {source}: coarse_angle_resolution must not exceed coarse_search_angle_offset")
     return values
@@ -171,6 +179,8 @@ def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=
             l_occ=f(_logit(v["occupancy_hit_probability"])),
             range_max=f(v["max_laser_range"]),
             hit_offset=f(v["occupancy_hit_offset_cells"] * grid.resolution),
+            l_min=f(_logit(v["occupancy_clamp_min_probability"])),
+            l_max=f(_logit(v["occupancy_clamp_max_probability"])),
         ),
         solver=SolverParams(robust_width=f(v["robust_width"]), max_iterations=jnp.asarray(v["solver_max_iterations"])),
         T_base_laser=f(T_base_laser),
