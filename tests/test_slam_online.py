@@ -351,3 +351,12 @@ def test_params_file_checks(tmp_path):
     assert ExploreConfig(map_hit_offset_cells=1.0).slam_values()["occupancy_hit_offset_cells"] == 1.0
     with pytest.raises(ValueError, match="map_hit_offset_cells"):
         ExploreConfig(map_hit_offset_cells=1.5)
+    # A file's lower clamp must stay below exploration's own miss probability, which replaces the file's.
+    clamp = tmp_path / "clamp.yaml"
+    clamp.write_text("occupancy_clamp_min_probability: 0.32\n")
+    with pytest.raises(ValueError, match="must lie below map_miss_probability"):
+        ExploreConfig(slam_params=str(clamp))
+    assert (
+        ExploreConfig(slam_params=str(clamp), map_miss_probability=0.34).slam_values()["occupancy_miss_probability"]
+        == 0.34
+    )

@@ -128,6 +128,11 @@ class ExploreConfig:
         range at most `map_range`, its miss probability `map_miss_probability`, its hit offset
         `map_hit_offset_cells`, and wall-heading priors for the full variant when `wall_heading`."""
         values = slam.load_params(self.slam_params)
+        if not values["occupancy_clamp_min_probability"] < self.map_miss_probability:
+            raise ValueError(
+                f"occupancy_clamp_min_probability ({values['occupancy_clamp_min_probability']}) must lie below "
+                f"map_miss_probability ({self.map_miss_probability})"
+            )
         nodes = math.ceil(self.seconds / max(values["minimum_time_interval"], 0.1)) + 2
         nodes = max(values["node_capacity"] if self.slam_params else 0, nodes)
         return values | {
