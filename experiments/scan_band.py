@@ -22,7 +22,7 @@ depthimage_to_laserscan's), a 1-row band, and a 5-row band reduced by its median
   coverage counts). Mean over robots. With --hit-offsets, each model's maps for each hit offset
   (a return's end cell taken that many cells beyond it along the ray; slam.yaml's `occupancy_hit_offset_cells`),
   with --clamp-mins for each lower clamp of a cell's occupancy (`occupancy_clamp_min_probability`; the upper
-  stays OctoMap's 0.971), and with --scan-every N from every Nth depth frame (frames come at 31.5 Hz; the online
+  stays OctoMap's 0.971), and with --scan-every N from every Nth depth frame (frames come at 31.25 Hz; the online
   SLAM draws its map from its node scans, about 2 per second while the robot walks: N = 16)
 """
 

@@ -129,9 +129,10 @@ class ExploreConfig:
         `map_hit_offset_cells`, and wall-heading priors for the full variant when `wall_heading`."""
         values = slam.load_params(self.slam_params)
         if not values["occupancy_clamp_min_probability"] < self.map_miss_probability:
+            source = self.slam_params or slam.params.DEFAULTS_FILE
             raise ValueError(
-                f"occupancy_clamp_min_probability ({values['occupancy_clamp_min_probability']}) must lie below "
-                f"map_miss_probability ({self.map_miss_probability})"
+                f"params file {source}: occupancy_clamp_min_probability ({values['occupancy_clamp_min_probability']}) "
+                f"must lie below map_miss_probability ({self.map_miss_probability})"
             )
         nodes = math.ceil(self.seconds / max(values["minimum_time_interval"], 0.1)) + 2
         nodes = max(values["node_capacity"] if self.slam_params else 0, nodes)
