@@ -55,6 +55,9 @@ def _true_ranges(truth, pose: np.ndarray, bearings: np.ndarray, range_max: float
 
 
 def main() -> int:
+    from jaxquad.slam.params import load_params
+
+    clamp_min = load_params()["occupancy_clamp_min_probability"]
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--robot", choices=("go2", "badger"), default="go2", help="robot (default go2)")
     p.add_argument("--world", choices=("house", "warehouse"), default="house", help="world (default house)")
@@ -80,9 +83,10 @@ def main() -> int:
         "--clamp-mins",
         nargs="+",
         type=float,
-        default=[1.0 / (1.0 + math.exp(2.0))],
+        default=[clamp_min],
         metavar="P",
-        help="with --map-models: the lower clamps of a cell's occupancy to compare, 0-MISS (default 0.1192: OctoMap's)",
+        help=f"with --map-models: the lower clamps of a cell's occupancy to compare, 0-MISS (default {clamp_min:.4g}: "
+        "slam.yaml's, OctoMap's)",
     )
     p.add_argument(
         "--scan-every",
