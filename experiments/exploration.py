@@ -50,6 +50,7 @@ def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     settings = {"robot": robot, "world": world, "variant": variant, "traces": args.traces, "slam_params": slam}
     settings |= {k: getattr(args, k) for k in keep}
     settings["low_obstacles"] = args.low_obstacles == "on"  # rows kept before "on"/"off" hold a bool
+    settings["view_goals"] = args.view_goals == "on"
     if variant != "full":  # the baseline never takes wall-heading priors or marks low obstacles
         settings |= {"wall_heading": "off", "low_obstacles": False}
     return settings
@@ -79,7 +80,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         saved = json.loads(done.read_text())
         # rows kept before --slam-params and the options below it had none: the values they ran with
         old = {"slam_params": None, "revisit_after": 0.0, "footprint_padding": 0.1, "low_obstacles": False}
-        old |= {"wall_heading": "off", "map_hit_offset_cells": 0.0}
+        old |= {"wall_heading": "off", "map_hit_offset_cells": 0.0, "view_goals": False}
         if old | saved.get("settings", {}) != settings:
             raise CheckpointError(f"{done}: a finished cell of other settings; remove it or choose another folder")
         print(f"{name}: finished earlier ({done})", file=sys.stderr, flush=True)
@@ -104,6 +105,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         revisit_after=args.revisit_after,
         footprint_padding=args.footprint_padding,
         low_obstacles=args.low_obstacles == "on",
+        view_goals=args.view_goals == "on",
         trace_robots=args.runs if args.traces else 4,
         devices=args.devices,
     )
@@ -139,6 +141,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         "distance_m": summary["distance_m"],
         "revisits": summary["revisits"],
         "revisits_closed": summary["revisits_closed"],
+        "view_s": summary["view_s"],
         "slam_error_m": summary["slam_error_m"],
         "compile_s": result.compile_s,
         "run_s": result.run_s,
@@ -153,7 +156,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
 
 
 # `ExploreResult`'s (ticks, ...) arrays, which --trace-every thins
-SERIES = ("t", "error", "active", "coverage", "true_pose", "pose", "goal", "mode", "revisiting")
+SERIES = ("t", "error", "active", "coverage", "true_pose", "pose", "goal", "mode", "revisiting", "viewing")
 
 
 def trace_ticks(t: np.ndarray, every_s: float) -> np.ndarray:

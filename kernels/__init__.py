@@ -1,6 +1,6 @@
 """Pure jitted math for one robot: contact observer, leg twist, scan slicing, Lie groups (`lie`), pose graphs,
-occupancy grids, scan matching, wall-direction headings, AMCL, costmaps, planning, MPPI, frontiers. `vmap` at the
-call site."""
+occupancy grids, scan matching, wall-direction headings, AMCL, costmaps, planning, MPPI, frontiers and the places
+they are seen from. `vmap` at the call site."""
 
 from jaxquad.kernels.contact import ContactEstimate, ContactObserver, ObserverParams, ObserverState
 from jaxquad.kernels.costmap import (
@@ -13,7 +13,15 @@ from jaxquad.kernels.costmap import (
     inscribed_depth,
 )
 from jaxquad.kernels.floor import FloorParams, FloorState, floor_init, floor_step, stance_height
-from jaxquad.kernels.frontiers import FrontierChoice, FrontierParams, choose_frontier, frontier_mask, label_clusters
+from jaxquad.kernels.frontiers import (
+    Clusters,
+    FrontierChoice,
+    FrontierParams,
+    choose_frontier,
+    frontier_clusters,
+    frontier_mask,
+    label_clusters,
+)
 from jaxquad.kernels.icp import Alignment, DepthLevel, IcpParams, align, depth_frame, gauss_newton_step
 from jaxquad.kernels.likelihood_field import (
     LikelihoodField,
@@ -62,6 +70,7 @@ from jaxquad.kernels.scan_grid import (
 )
 from jaxquad.kernels.scan_match import MatchResult, match_scan, scan_lookup, search_angles
 from jaxquad.kernels.twist import Twist, body_twist, rolling_contact
+from jaxquad.kernels.view_goals import ViewChoice, ViewParams, choose_view, free_lengths, in_view
 from jaxquad.kernels.wall_heading import (
     HeadingMeasurement,
     HeadingParams,
@@ -80,6 +89,7 @@ __all__ = [
     "AmclState",
     "Boxes",
     "CameraIntrinsics",
+    "Clusters",
     "ContactEstimate",
     "ContactObserver",
     "CostGrid",
@@ -116,6 +126,8 @@ __all__ = [
     "SolveInfo",
     "SolverParams",
     "Twist",
+    "ViewChoice",
+    "ViewParams",
     "align",
     "amcl_init",
     "amcl_step",
@@ -124,6 +136,7 @@ __all__ = [
     "cast_depth",
     "cells_for_range",
     "choose_frontier",
+    "choose_view",
     "cost_to_go",
     "costmap_from_occupancy",
     "costmap_layers",
@@ -137,8 +150,11 @@ __all__ = [
     "find_loop_closure",
     "floor_init",
     "floor_step",
+    "free_lengths",
+    "frontier_clusters",
     "frontier_mask",
     "gauss_newton_step",
+    "in_view",
     "inflation_cost",
     "init_grid",
     "inscribed_depth",

@@ -106,6 +106,21 @@ def cluster_stats(mask: Bool[Array, "H W"], labels: Int[Array, "H W"]) -> tuple[
     return size, sums / jnp.where(size > 0, size.astype(jnp.float32), jnp.nan)[:, None]
 
 
+class Clusters(eqx.Module):
+    """A map's frontier cells and their 8-connected clusters (per-cluster arrays: one slot per label)."""
+
+    mask: Bool[Array, "H W"]
+    labels: Int[Array, "H W"]  # `label_clusters`
+    size: Int[Array, " N"]  # N = H * W + 1 label slots
+    centroid: Float[Array, "N 2"]  # (row, col); nan for empty slots
+
+
+def frontier_clusters(grid: Int[Array, "H W"], free_thresh: float | Float[Array, ""]) -> Clusters:
+    mask = frontier_mask(grid, free_thresh)
+    labels = label_clusters(mask)
+    return Clusters(mask, labels, *cluster_stats(mask, labels))
+
+
 def choose_frontier(
     grid: Int[Array, "H W"],
     resolution: float | Float[Array, ""],
@@ -113,14 +128,15 @@ def choose_frontier(
     blacklist: Bool[Array, "H W"],
     params: FrontierParams,
     keep: Bool[Array, "H W"] | None = None,
+    clusters: Clusters | None = None,
 ) -> FrontierChoice:
     """The best frontier cluster given the robot's cost-to-go `value` (cells x weight; inf = unreachable); a
-    cluster whose goal cell lies in `keep` first (see the module doc)."""
+    cluster whose goal cell lies in `keep` first (see the module doc). `clusters`: `grid`'s, when already found."""
     h, w = grid.shape
     n = h * w + 1
-    mask = frontier_mask(grid, params.free_thresh)
-    labels = label_clusters(mask)
-    size, centroid = cluster_stats(mask, labels)
+    if clusters is None:
+        clusters = frontier_clusters(grid, params.free_thresh)
+    mask, labels, size, centroid = clusters.mask, clusters.labels, clusters.size, clusters.centroid
     reach = free_cells(grid, params.free_thresh) & jnp.isfinite(value)
     rr, cc = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
     cen = centroid[labels.reshape(-1)].reshape(h, w, 2)

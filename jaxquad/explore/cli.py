@@ -65,6 +65,14 @@ def add_loop_arguments(parser: argparse.ArgumentParser) -> None:
         f"{'on' if c.low_obstacles else 'off'}; the baseline variant: never)",
     )
     parser.add_argument(
+        "--view-goals",
+        choices=("on", "off"),
+        default="on" if c.view_goals else "off",
+        help="once no reachable frontier is left, walk to where a frontier out of reach (a slot too narrow to "
+        "enter, one too short to count) lies in plain view and look at it, before exploration counts as finished "
+        f"(default {'on' if c.view_goals else 'off'})",
+    )
+    parser.add_argument(
         "--footprint-padding",
         type=float,
         default=c.footprint_padding,
@@ -200,6 +208,7 @@ def run(args: argparse.Namespace) -> int:
         wall_heading=args.wall_heading == "on",
         revisit_after=args.revisit_after,
         low_obstacles=args.low_obstacles == "on",
+        view_goals=args.view_goals == "on",
         footprint_padding=args.footprint_padding,
         band_height=args.band_height,
         band_reduce=args.band_reduce,

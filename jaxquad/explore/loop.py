@@ -147,6 +147,7 @@ class ExploreOutput(eqx.Module):
     goal: Float[Array, "*B 3"]  # the frontier goal, or the revisited node's pose
     has_goal: Bool[Array, "*B"]
     revisiting: Bool[Array, "*B"]  # the goal is a revisit (`jaxquad.nav.revisit`)
+    viewing: Bool[Array, "*B"]  # the goal is a view goal (`jaxquad.nav.explore`)
     mode: Int[Array, "*B"]  # MODES code: what commanded the robot on the tick
     active: Bool[Array, "*B"]  # the run had not ended at the start of the tick
     loop_closed: Bool[Array, "*B"]  # the SLAM accepted a loop closure on the tick
@@ -250,14 +251,14 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
             params.revisit, s.revisit, nodes, slam_state.loops, s.body.sim.t, s.pose, grid, value, period, running
         )
         # The frontier's progress clock stands still over a period the robot spent on a revisit.
-        ex, choice = explore.update(
+        ex, _ = explore.update(
             params.explore, s.explore, values, grid, s.pose, jnp.where(s.revisit.active, 0.0, period), value
         )
-        goal_rc = jnp.where(rv.active, grid.cell_of(rv.goal[:2]), choice.goal_rc)
-        p = nav.plan_from_start(params.nav, grid, weight, value, goal_rc, s.pose)
-        p = eqx.tree_at(lambda x: x.ok, p, p.ok & (choice.found | rv.active))
+        goal, has_goal = goal_of(ex, rv)
+        p = nav.plan_from_start(params.nav, grid, weight, value, grid.cell_of(goal[:2]), s.pose)
+        p = eqx.tree_at(lambda x: x.ok, p, p.ok & has_goal)
         # A new goal (one that moved): MPPI restarts from a zero sequence on the new plan.
-        moved = jnp.linalg.norm(goal_of(ex, rv)[0][:2] - goal_of(s.explore, s.revisit)[0][:2])
+        moved = jnp.linalg.norm(goal[:2] - goal_of(s.explore, s.revisit)[0][:2])
         moved = moved > params.explore.blacklist_radius
         fresh = nav.init(params.nav, s.pose).controller
         ctrl = jax.tree.map(lambda a, b: jnp.where(moved, a, b), fresh, s.nav.controller)
@@ -373,6 +374,7 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
             goal=goal,
             has_goal=has_goal,
             revisiting=rv.active,
+            viewing=ex.viewing & ex.has_goal & ~rv.active,
             mode=mode.astype(jnp.int8),
             active=active,
             loop_closed=loop_closed,

@@ -123,6 +123,7 @@ def summarize(result, every: float = 5.0) -> dict:
                 "revisits": int(result.revisits[i]),
                 "revisits_closed": int(result.revisits_closed[i]),
                 "revisit_s": float(result.revisiting[result.active[:, i], i].sum() * tick_s),
+                "view_s": float(result.viewing[result.active[:, i], i].sum() * tick_s),
                 "map_scores": scores[i],
             }
         )
@@ -157,6 +158,7 @@ def summarize(result, every: float = 5.0) -> dict:
         "distance_m": _stats(result.distance),
         "revisits": _stats(result.revisits),
         "revisits_closed": _stats(result.revisits_closed),
+        "view_s": _stats((result.viewing & result.active).sum(0) * tick_s),
         "slam_error_m": _stats(result.error[result.active]),
         "timing": timing(result, n) | {"chunk_s": np.round(result.chunk_s, 3).tolist()},
         "per_robot": per_robot,

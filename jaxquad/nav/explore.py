@@ -7,8 +7,15 @@ has come within `reach_radius` of it (a frontier the camera could resolve is gon
 lies in a blind spot, inside furniture seen edge-on or behind a wall), computes the robot's cost-to-go
 over known free space, and picks a reachable frontier cluster (`kernels.frontiers`): the current goal's
 own cluster while it lasts (commitment: `keep`, the disk of `blacklist_radius` around the goal), else the
-nearest. The goal's yaw faces from the robot towards it. `done` is set when no reachable, large enough,
-non-blacklisted frontier is left. Navigation to the goal is `jaxquad.nav`.
+nearest. The goal's yaw faces from the robot towards it.
+
+When no such frontier is left, a view goal (`kernels.view_goals`) takes its place: a reachable cell from which a
+frontier the robot cannot walk up to (too short, behind a gap too narrow for it, or blacklisted) lies in plain view,
+the goal's yaw facing it. Once the robot has stood within `view_radius` of it, turned to within `view_yaw_tolerance`,
+for `view_dwell` seconds (the SLAM's nodes then hold the view), or after `blacklist_timeout` seconds without
+progress, the cell looked at and its surroundings (a disk of `view_done_radius`) are marked `viewed`, and no view goal
+looks there again. A frontier that becomes reachable goes first. `done` is set when neither kind of goal is left.
+Navigation to the goal is `jaxquad.nav`.
 """
 
 from __future__ import annotations
@@ -18,8 +25,10 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from jaxquad.kernels.costmap import CostGrid
-from jaxquad.kernels.frontiers import FrontierChoice, FrontierParams, choose_frontier
+from jaxquad.kernels.frontiers import FrontierChoice, FrontierParams, choose_frontier, frontier_clusters
+from jaxquad.kernels.lie import wrap_angle
 from jaxquad.kernels.planner import cost_to_go, nearest_open_cell, step_weights
+from jaxquad.kernels.view_goals import ViewParams, choose_view
 
 
 class ExploreParams(eqx.Module):
@@ -30,9 +39,15 @@ class ExploreParams(eqx.Module):
     blacklist_radius: Float[Array, ""]  # m around a blacklisted goal (and around the goal kept)
     reach_radius: Float[Array, ""]  # m: a goal this close is done with (blacklisted if its frontier is left)
     start_tolerance: Float[Array, ""]  # m: a robot on a blocked cell plans from the nearest open cell
+    view: ViewParams
+    view_goals: Bool[Array, ""]  # look at frontiers out of reach once no reachable one is left
+    view_radius: Float[Array, ""]  # m: a view goal this close ...
+    view_yaw_tolerance: Float[Array, ""]  # rad: ... with the heading this close to its yaw ...
+    view_dwell: Float[Array, ""]  # s: ... for this long is done with
+    view_done_radius: Float[Array, ""]  # m around a frontier cell looked at: no view goal looks there again
 
     @classmethod
-    def default(cls, **frontier_overrides: float) -> ExploreParams:
+    def default(cls, view_goals: bool = True, **frontier_overrides: float) -> ExploreParams:
         f32 = lambda v: jnp.asarray(v, jnp.float32)
         return cls(
             frontier=FrontierParams.default(**frontier_overrides),
@@ -43,6 +58,17 @@ class ExploreParams(eqx.Module):
             # The camera's blind distance: 0.29 m from the base to the lens plus its 0.2 m minimum range.
             reach_radius=f32(0.5),
             start_tolerance=f32(0.5),
+            view=ViewParams.default(),
+            view_goals=jnp.asarray(view_goals),
+            # The navigation's arrival tolerances (0.25 m, 0.25 rad), and three planning periods standing there: the
+            # SLAM adds a node on 0.02 rad of rotation or 0.1 m of travel, at most every 0.5 s, and the map needs two
+            # scans' misses for a free cell.
+            view_radius=f32(0.3),
+            view_yaw_tolerance=f32(0.25),
+            view_dwell=f32(3.0),
+            # Three cells: a view that revealed some of a frontier moves the cell looked at (its cluster's
+            # nearest to the centroid) farther than that; one that revealed nothing leaves it.
+            view_done_radius=f32(0.15),
         )
 
 
@@ -53,6 +79,10 @@ class ExploreState(eqx.Module):
     best_distance: Float[Array, ""]  # m, smallest distance to the goal so far
     since_progress: Float[Array, ""]  # s
     done: Bool[Array, ""]
+    viewing: Bool[Array, ""]  # the goal is a view goal
+    target: Float[Array, " 2"]  # world x, y (m) of the frontier cell a view goal looks at
+    viewed: Bool[Array, "H W"]  # surroundings of the frontiers already looked at
+    view_time: Float[Array, ""]  # s the robot has stood at its view goal, turned to it
 
 
 def init(shape: tuple[int, int]) -> ExploreState:
@@ -63,6 +93,10 @@ def init(shape: tuple[int, int]) -> ExploreState:
         best_distance=jnp.asarray(jnp.inf, jnp.float32),
         since_progress=jnp.zeros((), jnp.float32),
         done=jnp.array(False),
+        viewing=jnp.array(False),
+        target=jnp.zeros(2, jnp.float32),
+        viewed=jnp.zeros(shape, bool),
+        view_time=jnp.zeros((), jnp.float32),
     )
 
 
@@ -86,38 +120,60 @@ def update(
     elapsed: float | Float[Array, ""],
     value: Float[Array, "H W"] | None = None,
 ) -> tuple[ExploreState, FrontierChoice]:
-    """One planning period: progress check, blacklist, new frontier goal. `grid` is `occupancy`'s costmap;
-    `value` the robot's cost-to-go on it when already computed (`robot_value`)."""
+    """One planning period: progress check, blacklist, new frontier goal, else a view goal. `grid` is
+    `occupancy`'s costmap; `value` the robot's cost-to-go on it when already computed (`robot_value`). Returns
+    the frontier choice; the goal taken (frontier or view) is the state's."""
     h, w = occupancy.shape
     distance = jnp.linalg.norm(pose[:2] - state.goal[:2])
     progressed = distance < state.best_distance - params.progress_margin
     since = jnp.where(progressed, 0.0, state.since_progress + elapsed)
     best = jnp.where(progressed, distance, state.best_distance)
-    drop = state.has_goal & ((since > params.blacklist_timeout) | (distance < params.reach_radius))
+    stalled = state.has_goal & (since > params.blacklist_timeout)
+    drop = ~state.viewing & (stalled | (state.has_goal & (distance < params.reach_radius)))
+    turned = jnp.abs(wrap_angle(pose[2] - state.goal[2])) < params.view_yaw_tolerance
+    there = state.has_goal & state.viewing & (distance < params.view_radius) & turned
+    view_time = jnp.where(there, state.view_time + elapsed, 0.0)
+    looked = state.viewing & (stalled | (view_time >= params.view_dwell))
     rr, cc = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
-    g = grid.cell_of(state.goal[:2])
-    disk = ((rr - g[0]) ** 2 + (cc - g[1]) ** 2).astype(jnp.float32) <= (params.blacklist_radius / grid.resolution) ** 2
-    blacklist = state.blacklist | (drop & disk)
+
+    def disk(xy, radius):
+        g = grid.cell_of(xy)
+        d2 = ((rr - g[0]) ** 2 + (cc - g[1]) ** 2).astype(jnp.float32)
+        return d2 <= (radius / grid.resolution) ** 2
+
+    around_goal = disk(state.goal[:2], params.blacklist_radius)
+    blacklist = state.blacklist | (drop & around_goal)
+    viewed = state.viewed | (looked & disk(state.target, params.view_done_radius))
 
     if value is None:
         _, value = robot_value(params, grid, pose)
-    keep = disk & state.has_goal & ~drop
+    keep = around_goal & state.has_goal & ~state.viewing & ~drop
     # A goal already within reach of the robot is one it stands at without seeing (it would also turn there).
     r = grid.cell_of(pose[:2])
     here = ((rr - r[0]) ** 2 + (cc - r[1]) ** 2).astype(jnp.float32) <= (params.reach_radius / grid.resolution) ** 2
-    choice = choose_frontier(occupancy, grid.resolution, value, blacklist | here, params.frontier, keep)
+    clusters = frontier_clusters(occupancy, params.frontier.free_thresh)
+    choice = choose_frontier(occupancy, grid.resolution, value, blacklist | here, params.frontier, keep, clusters)
+    view = choose_view(occupancy, grid.resolution, value, r, viewed, params.frontier.free_thresh, params.view, clusters)
+    viewing = ~choice.found & view.found & params.view_goals
 
-    xy = grid.center_of(choice.goal_rc)
-    goal = jnp.append(xy, jnp.arctan2(xy[1] - pose[1], xy[0] - pose[0]))
-    # A goal that moved by more than the blacklist radius is a new goal: the progress clock restarts.
-    same = state.has_goal & ~drop & (jnp.linalg.norm(xy - state.goal[:2]) <= params.blacklist_radius)
+    xy = grid.center_of(jnp.where(viewing, view.goal_rc, choice.goal_rc))
+    toward = jnp.where(viewing, grid.center_of(view.target_rc), xy)
+    origin = jnp.where(viewing, xy, pose[:2])
+    goal = jnp.append(xy, jnp.arctan2(toward[1] - origin[1], toward[0] - origin[0]))
+    # A goal that moved by more than the blacklist radius, or changed kind, is a new goal: the clocks restart.
+    kept = state.has_goal & ~drop & ~looked & (viewing == state.viewing)
+    same = kept & (jnp.linalg.norm(xy - state.goal[:2]) <= params.blacklist_radius)
     new_distance = jnp.linalg.norm(xy - pose[:2])
     state = ExploreState(
         blacklist=blacklist,
         goal=goal,
-        has_goal=choice.found,
+        has_goal=choice.found | viewing,
         best_distance=jnp.where(same, best, new_distance),
         since_progress=jnp.where(same, since, 0.0),
-        done=~choice.found,
+        done=~(choice.found | viewing),
+        viewing=viewing,
+        target=jnp.where(viewing, grid.center_of(view.target_rc), state.target),
+        viewed=viewed,
+        view_time=jnp.where(same, view_time, 0.0),
     )
     return state, choice
