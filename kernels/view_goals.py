@@ -1,23 +1,26 @@
 """View goals: a reachable place from which to look at a frontier the robot cannot walk up to.
 
-A frontier cluster that `kernels.frontiers` cannot use (shorter than its `min_size`, no reachable free cell next to
-it, or its goal blacklisted after the robot stood there and still saw nothing) may still be seen from farther away:
-a slot between a box and a wall, too narrow to enter, is seen only from its mouth, looking in. Here a cluster's
-target is its frontier cell nearest the cluster's centroid. From the target, `n_rays` rays (evenly spread over the
-full turn) are marched in steps of a quarter cell through known free cells; each ray's free length is the distance
-of its last sample before a cell that is not free (the target's own cell excepted) or leaves the grid. A cell is in
-view of the target when its centre lies within the free lengths of the two rays around its bearing, so the straight
-line from it to the target crosses free cells only (up to the rays' spacing, under a cell at `max_range` with the
-default 360 rays). Candidates are the reachable cells (finite cost-to-go from the robot) in view of a target at a
-distance within [min_range, max_range]; each costs its cost-to-go plus `range_weight` times its distance to the
-target (cells), and the goal is the cheapest candidate over the `n_clusters` clusters whose targets lie nearest the
-robot (straight-line distance). The robot stands there facing the target. Every candidate in view costs about the
-robot's path to the target, the last stretch seen instead of walked; a `range_weight` above 1 takes the robot as near
-as it can see from (a slot is then looked into from its mouth, along it, not glimpsed from afar at a slant), where
-the depth noise is least.
+A frontier that `kernels.frontiers` cannot use (a cluster shorter than its `min_size`, no reachable free cell next
+to it, or its goal blacklisted after the robot stood there and still saw nothing) may still be seen from farther
+away: a slot between a box and a wall, too narrow to enter, is seen only from its mouth, looking in. Targets are
+frontier cells of clusters at least `min_size` long, not in `excluded`: the `n_scored` of them nearest the robot
+(straight-line distance). Cells, not clusters: one cluster may run from a slot's visible mouth along a box's face
+whose unknown inside no place sees, and a single cell standing for it (its centroid's, say) may lie on the hidden part.
+From a target, `n_rays` rays (evenly spread over the full turn) are marched in steps of a quarter cell through known
+free cells; each ray's free length is the distance of its last sample before a cell that is not free (the target's
+own cell excepted) or leaves the grid. A cell is in view of the target when its centre lies within the free lengths
+of the two rays around its bearing, so the straight line from it to the target crosses free cells only (up to the
+rays' spacing, under a cell at `max_range` with the default 360 rays). Candidates are the reachable cells (finite
+cost-to-go from the robot) in view of a target at a distance within [min_range, max_range]; each costs its
+cost-to-go plus `range_weight` times its distance to the target (cells), and the goal is the cheapest candidate over
+the targets scored. The robot stands there facing the target. Every candidate in view costs about the robot's path to
+the target, the last stretch seen instead of walked; a `range_weight` above 1 takes the robot as near as it can see
+from (a slot is then looked into from its mouth, along it, not glimpsed from afar at a slant), where the depth noise
+is least.
 
-Clusters whose target lies in `excluded` (where the caller has already looked) are left out: a view that revealed
-part of a cluster moves its target on, one that revealed nothing leaves it there.
+`excluded` is where the caller has already looked, and the targets scored that no candidate sees (`hopeless`, the
+unknown inside a box behind its mapped faces, say), which the caller excludes in turn so that the next call scores
+the next ones; `n_targets` counts the frontier cells left to score.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ _STEP = 0.25  # cells between two samples of a ray
 
 class ViewParams(eqx.Module):
     n_rays: int = eqx.field(static=True)  # rays cast from each target over the full turn
-    n_clusters: int = eqx.field(static=True)  # clusters nearest the robot whose views are scored
+    n_scored: int = eqx.field(static=True)  # target cells scored per call (those nearest the robot)
     reach_cells: int = eqx.field(static=True)  # cells the cast reaches (sizes it): max_range beyond is cut there
     min_size: Float[Array, ""]  # m: shorter clusters are not looked at
     min_range: Float[Array, ""]  # m: nearest a goal may stand from its target
@@ -49,7 +52,7 @@ class ViewParams(eqx.Module):
         # margin; 2.5 m: the depth noise (1 % of z^2) is 6 cm there, about a cell; 50 cells: 2.5 m at 0.05 m.
         values = {
             "n_rays": 360,
-            "n_clusters": 8,
+            "n_scored": 16,
             "reach_cells": 50,
             "min_size": 0.2,
             "min_range": 0.6,
@@ -57,7 +60,7 @@ class ViewParams(eqx.Module):
             "range_weight": 2.0,
         }
         values.update(overrides)
-        static = {k: int(values.pop(k)) for k in ("n_rays", "n_clusters", "reach_cells")}
+        static = {k: int(values.pop(k)) for k in ("n_rays", "n_scored", "reach_cells")}
         return cls(**static, **{k: jnp.asarray(v, jnp.float32) for k, v in values.items()})
 
 
@@ -66,7 +69,9 @@ class ViewChoice(eqx.Module):
     goal_rc: Int[Array, " 2"]  # the reachable cell to look from
     target_rc: Int[Array, " 2"]  # the frontier cell to look at
     cost: Float[Array, ""]  # the goal's cost (inf when not found)
-    n_targets: Int[Array, ""]  # clusters long enough and not excluded
+    n_targets: Int[Array, ""]  # frontier cells of clusters long enough, not excluded
+    scored_rc: Int[Array, "K 2"]  # the targets scored (K = n_scored)
+    hopeless: Bool[Array, " K"]  # a scored target that no reachable cell within the ranges has in view
 
 
 def free_lengths(
@@ -128,33 +133,28 @@ def choose_view(
     params: ViewParams,
     clusters: Clusters | None = None,
 ) -> ViewChoice:
-    """The cheapest view of a frontier cluster (see the module doc) given the robot's cost-to-go `value`
-    (inf: unreachable) and its cell `robot_rc`. `clusters`: `grid`'s, when already found."""
+    """The cheapest view of a frontier cell (see the module doc) given the robot's cost-to-go `value` (inf:
+    unreachable) and its cell `robot_rc`. `clusters`: `grid`'s, when already found."""
     h, w = grid.shape
-    n = h * w + 1
     if clusters is None:
         clusters = frontier_clusters(grid, free_thresh)
-    mask, labels, size, centroid = clusters.mask, clusters.labels, clusters.size, clusters.centroid
-    lab = labels.reshape(-1)
-    rr, cc = jnp.meshgrid(jnp.arange(h, dtype=jnp.float32), jnp.arange(w, dtype=jnp.float32), indexing="ij")
-    cen = centroid[lab]
-    d2 = jnp.where(mask.reshape(-1), (rr.reshape(-1) - cen[:, 0]) ** 2 + (cc.reshape(-1) - cen[:, 1]) ** 2, jnp.inf)
-    nearest = d2 == jax.ops.segment_min(d2, lab, n)[lab]
-    target = jax.ops.segment_min(jnp.where(mask.reshape(-1) & nearest, jnp.arange(h * w), h * w), lab, n)
-    ok = (size.astype(jnp.float32) * resolution >= params.min_size) & (target < h * w)
-    ok = ok & ~jnp.append(excluded.reshape(-1), True)[target]
-    ok = ok.at[n - 1].set(False)
-    t_rc = jnp.stack([jnp.minimum(target, h * w - 1) // w, jnp.minimum(target, h * w - 1) % w], -1)
-    far = jnp.sum((t_rc - robot_rc).astype(jnp.float32) ** 2, -1)
-    _, slots = jax.lax.top_k(jnp.where(ok, -far, -jnp.inf), params.n_clusters)
+    long_enough = clusters.size.astype(jnp.float32) * resolution >= params.min_size
+    eligible = (clusters.mask & long_enough[clusters.labels] & ~excluded).reshape(-1)
+    rr, cc = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
+    d2 = ((rr - robot_rc[0]) ** 2 + (cc - robot_rc[1]) ** 2).astype(jnp.float32).reshape(-1)
+    _, idx = jax.lax.top_k(jnp.where(eligible, -d2, -jnp.inf), params.n_scored)
+    ok = eligible[idx]
+    t_rc = jnp.stack([idx // w, idx % w], -1).astype(jnp.int32)
     free = free_cells(grid, free_thresh)
-    costs, goals = jax.vmap(lambda rc: _best_view(free, value, rc, resolution, params))(t_rc[slots])
-    costs = jnp.where(ok[slots], costs, jnp.inf)
+    costs, goals = jax.vmap(lambda rc: _best_view(free, value, rc, resolution, params))(t_rc)
+    costs = jnp.where(ok, costs, jnp.inf)
     best = jnp.argmin(costs)
     return ViewChoice(
         found=jnp.isfinite(costs[best]),
         goal_rc=goals[best].astype(jnp.int32),
-        target_rc=t_rc[slots[best]].astype(jnp.int32),
+        target_rc=t_rc[best],
         cost=costs[best],
-        n_targets=jnp.sum(ok),
+        n_targets=jnp.sum(eligible),
+        scored_rc=t_rc,
+        hopeless=ok & ~jnp.isfinite(costs),
     )

@@ -175,13 +175,20 @@ def test_a_walled_off_frontier_and_an_excluded_one_are_not_looked_at():
     value = _value(grid, (20, 20), blocked_rows_from=60)
     out = _view(grid, value, (20, 20))
     assert int(out.n_targets) >= 1 and not bool(out.found)
+    hopeless = {tuple(rc) for rc, h in zip(np.asarray(out.scored_rc), np.asarray(out.hopeless)) if h}
+    assert len(hopeless) == int(out.n_targets) and all(66 <= r <= 67 and 40 <= c < 48 for r, c in hopeless)
 
     open_ = _room_with_slot()
     first = _view(open_, value, (20, 20))
+    assert bool(first.found) and int(first.n_targets) == 8 and not np.asarray(first.hopeless).any()
     excluded = np.zeros(grid.shape, bool)
     excluded[tuple(np.asarray(first.target_rc))] = True
+    second = _view(open_, value, (20, 20), excluded)  # another cell of the slot's frontier
+    assert bool(second.found) and int(second.n_targets) == 7
+    assert tuple(np.asarray(second.target_rc)) != tuple(np.asarray(first.target_rc))
+    excluded[66, 40:48] = True
     again = _view(open_, value, (20, 20), excluded)
-    assert bool(first.found) and not bool(again.found) and int(again.n_targets) == 0
+    assert not bool(again.found) and int(again.n_targets) == 0 and not np.asarray(again.hopeless).any()
 
 
 def test_the_nearest_clusters_are_scored_and_short_ones_skipped():
@@ -199,7 +206,7 @@ def test_the_nearest_clusters_are_scored_and_short_ones_skipped():
         FREE_THRESH,
         PARAMS,
     )
-    assert bool(out.found) and 70 <= int(out.target_rc[1]) < 78 and int(out.n_targets) == 2
+    assert bool(out.found) and 70 <= int(out.target_rc[1]) < 78 and int(out.n_targets) == 16
     costs = [_brute_force(grid, value, t)[0] for t in ((66, 43), (66, 73))]
     assert float(out.cost) <= min(costs) + 2.0
     short = ViewParams.default(min_size=0.45)  # each slot's frontier is 8 cells = 0.4 m

@@ -14,7 +14,9 @@ frontier the robot cannot walk up to (too short, behind a gap too narrow for it,
 the goal's yaw facing it. Once the robot has stood within `view_radius` of it, turned to within `view_yaw_tolerance`,
 for `view_dwell` seconds (the SLAM's nodes then hold the view), or after `blacklist_timeout` seconds without
 progress, the cell looked at and its surroundings (a disk of `view_done_radius`) are marked `viewed`, and no view goal
-looks there again. A frontier that becomes reachable goes first. `done` is set when neither kind of goal is left.
+looks there again; so is every frontier cell scored as a target that no reachable cell sees (`kernels.view_goals`'
+`hopeless`), while no reachable frontier is left, so that the next period scores the next ones. A frontier that
+becomes reachable goes first. `done` is set when neither kind of goal is left and no frontier cell is left to score.
 Navigation to the goal is `jaxquad.nav`.
 """
 
@@ -66,8 +68,8 @@ class ExploreParams(eqx.Module):
             view_radius=f32(0.3),
             view_yaw_tolerance=f32(0.25),
             view_dwell=f32(3.0),
-            # Three cells: a view that revealed some of a frontier moves the cell looked at (its cluster's
-            # nearest to the centroid) farther than that; one that revealed nothing leaves it.
+            # Three cells: a view that revealed some of a frontier moves its cells farther than that; one that
+            # revealed nothing leaves them, and the neighbours of the cell looked at are looked at no more.
             view_done_radius=f32(0.15),
         )
 
@@ -155,6 +157,12 @@ def update(
     choice = choose_frontier(occupancy, grid.resolution, value, blacklist | here, params.frontier, keep, clusters)
     view = choose_view(occupancy, grid.resolution, value, r, viewed, params.frontier.free_thresh, params.view, clusters)
     viewing = ~choice.found & view.found & params.view_goals
+    # Targets no reachable cell sees are excluded too, while views are sought, so the next ones get scored.
+    hopeless = view.hopeless & ~choice.found & params.view_goals
+    for k in range(params.view.n_scored):
+        viewed = viewed | (hopeless[k] & disk(grid.center_of(view.scored_rc[k]), params.view_done_radius))
+    # Not done while frontier cells are left to score: the next period scores the next ones.
+    pending = params.view_goals & ~choice.found & (view.n_targets > jnp.sum(hopeless))
 
     xy = grid.center_of(jnp.where(viewing, view.goal_rc, choice.goal_rc))
     toward = jnp.where(viewing, grid.center_of(view.target_rc), xy)
@@ -170,7 +178,7 @@ def update(
         has_goal=choice.found | viewing,
         best_distance=jnp.where(same, best, new_distance),
         since_progress=jnp.where(same, since, 0.0),
-        done=~(choice.found | viewing),
+        done=~(choice.found | viewing | pending),
         viewing=viewing,
         target=jnp.where(viewing, grid.center_of(view.target_rc), state.target),
         viewed=viewed,
