@@ -145,15 +145,7 @@ def test_cells_in_view_have_a_clear_line_and_nearly_every_clear_cell_is_in_view(
 def test_slot_is_looked_into_from_its_mouth_as_the_brute_force_search_finds():
     grid = _room_with_slot()
     value = _value(grid, (20, 20), blocked_rows_from=60)
-    out = _choose(
-        jnp.asarray(grid),
-        RES,
-        jnp.asarray(value),
-        jnp.array([20, 20]),
-        jnp.zeros(grid.shape, bool),
-        FREE_THRESH,
-        PARAMS,
-    )
+    out = _view(grid, value, (20, 20))
     assert bool(out.found)
     target = tuple(np.asarray(out.target_rc))
     assert grid[target] == -1 and 40 <= target[1] < 48  # a frontier cell inside the slot
@@ -197,15 +189,7 @@ def test_the_nearest_clusters_are_scored_and_short_ones_skipped():
     grid[60:78, 70:78] = 0
     grid[66:78, 70:78] = -1
     value = _value(grid, (20, 90), blocked_rows_from=60)
-    out = _choose(
-        jnp.asarray(grid),
-        RES,
-        jnp.asarray(value),
-        jnp.array([20, 90]),
-        jnp.zeros(grid.shape, bool),
-        FREE_THRESH,
-        PARAMS,
-    )
+    out = _view(grid, value, (20, 90))
     assert bool(out.found) and 70 <= int(out.target_rc[1]) < 78 and int(out.n_targets) == 16
     costs = [_brute_force(grid, value, t)[0] for t in ((66, 43), (66, 73))]
     assert float(out.cost) <= min(costs) + 2.0
