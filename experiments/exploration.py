@@ -51,8 +51,8 @@ def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     settings |= {k: getattr(args, k) for k in keep}
     settings["low_obstacles"] = args.low_obstacles == "on"  # rows kept before "on"/"off" hold a bool
     settings["view_goals"] = args.view_goals == "on"
-    if variant != "full":  # the baseline never takes wall-heading priors or marks low obstacles
-        settings |= {"wall_heading": "off", "low_obstacles": False}
+    if variant != "full":  # the baseline never takes wall-heading priors, marks low obstacles or seeks views
+        settings |= {"wall_heading": "off", "low_obstacles": False, "view_goals": False}
     return settings
 
 

@@ -116,6 +116,7 @@ class Clusters(eqx.Module):
 
 
 def frontier_clusters(grid: Int[Array, "H W"], free_thresh: float | Float[Array, ""]) -> Clusters:
+    """`grid`'s frontier cells (`frontier_mask`), their labels (`label_clusters`), sizes and centroids."""
     mask = frontier_mask(grid, free_thresh)
     labels = label_clusters(mask)
     return Clusters(mask, labels, *cluster_stats(mask, labels))

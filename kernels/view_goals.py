@@ -19,8 +19,8 @@ from (a slot is then looked into from its mouth, along it, not glimpsed from afa
 is least.
 
 `excluded` is where the caller has already looked, and the targets scored that no candidate sees (`hopeless`, the
-unknown inside a box behind its mapped faces, say), which the caller excludes in turn so that the next call scores
-the next ones; `n_targets` counts the frontier cells left to score.
+unknown inside a box behind its mapped faces, say), which the caller excludes in turn (each cell alone: its
+neighbours may be seen) so that the next call scores the next ones; `n_left` counts the frontier cells still to score.
 """
 
 from __future__ import annotations
@@ -65,13 +65,14 @@ class ViewParams(eqx.Module):
 
 
 class ViewChoice(eqx.Module):
-    found: Bool[Array, ""]  # False: no frontier left that a reachable cell sees
+    found: Bool[Array, ""]  # False: none of the targets scored is in view of a reachable cell
     goal_rc: Int[Array, " 2"]  # the reachable cell to look from
     target_rc: Int[Array, " 2"]  # the frontier cell to look at
     cost: Float[Array, ""]  # the goal's cost (inf when not found)
     n_targets: Int[Array, ""]  # frontier cells of clusters long enough, not excluded
-    scored_rc: Int[Array, "K 2"]  # the targets scored (K = n_scored)
-    hopeless: Bool[Array, " K"]  # a scored target that no reachable cell within the ranges has in view
+    scored_rc: Int[Array, "K 2"]  # the targets scored: the n_scored nearest the robot, then the kept one
+    hopeless: Bool[Array, "H W"]  # the targets scored that no reachable cell within the ranges has in view
+    n_left: Int[Array, ""]  # targets (as n_targets counts them) not hopeless
 
 
 def free_lengths(
@@ -132,9 +133,12 @@ def choose_view(
     free_thresh: float | Float[Array, ""],
     params: ViewParams,
     clusters: Clusters | None = None,
+    keep_rc: Int[Array, " 2"] | None = None,
 ) -> ViewChoice:
     """The cheapest view of a frontier cell (see the module doc) given the robot's cost-to-go `value` (inf:
-    unreachable) and its cell `robot_rc`. `clusters`: `grid`'s, when already found."""
+    unreachable) and its cell `robot_rc`. `clusters`: `grid`'s, when already found. `keep_rc`: a target kept (the
+    caller's current one, or a cell off the grid for none), scored too and chosen first while it is eligible and in
+    view: the targets nearest the robot change as it walks, and without it the goal could switch to and fro."""
     h, w = grid.shape
     if clusters is None:
         clusters = frontier_clusters(grid, free_thresh)
@@ -145,10 +149,18 @@ def choose_view(
     _, idx = jax.lax.top_k(jnp.where(eligible, -d2, -jnp.inf), params.n_scored)
     ok = eligible[idx]
     t_rc = jnp.stack([idx // w, idx % w], -1).astype(jnp.int32)
+    if keep_rc is not None:
+        inside = (keep_rc[0] >= 0) & (keep_rc[0] < h) & (keep_rc[1] >= 0) & (keep_rc[1] < w)
+        kept = jnp.clip(keep_rc, 0, jnp.array([h - 1, w - 1])).astype(jnp.int32)
+        ok = jnp.append(ok, inside & eligible[kept[0] * w + kept[1]])
+        t_rc = jnp.concatenate([t_rc, kept[None]])
     free = free_cells(grid, free_thresh)
     costs, goals = jax.vmap(lambda rc: _best_view(free, value, rc, resolution, params))(t_rc)
     costs = jnp.where(ok, costs, jnp.inf)
     best = jnp.argmin(costs)
+    if keep_rc is not None:
+        best = jnp.where(jnp.isfinite(costs[-1]), costs.shape[0] - 1, best)
+    hopeless = jnp.zeros(h * w, bool).at[t_rc[:, 0] * w + t_rc[:, 1]].max(ok & ~jnp.isfinite(costs))
     return ViewChoice(
         found=jnp.isfinite(costs[best]),
         goal_rc=goals[best].astype(jnp.int32),
@@ -156,5 +168,6 @@ def choose_view(
         cost=costs[best],
         n_targets=jnp.sum(eligible),
         scored_rc=t_rc,
-        hopeless=ok & ~jnp.isfinite(costs),
+        hopeless=hopeless.reshape(h, w),
+        n_left=jnp.sum(eligible & ~hopeless),
     )

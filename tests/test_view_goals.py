@@ -70,6 +70,7 @@ def _value(grid, start_rc, blocked_rows_from=None):
 
 
 def _view(grid, value, robot_rc, excluded=None, params=PARAMS):
+    """`choose_view` on NumPy inputs."""
     excluded = np.zeros(grid.shape, bool) if excluded is None else excluded
     args = (jnp.asarray(robot_rc), jnp.asarray(excluded), FREE_THRESH, params)
     return _choose(jnp.asarray(grid), RES, jnp.asarray(value), *args)
@@ -84,17 +85,37 @@ def _clear(free, target, cell, min_chord=0.25):
 
 
 def _brute_force(grid, value, target, params=PARAMS):
-    """(cost, cell) of the cheapest reachable cell with a clear line to `target` within the ranges, every cell tried."""
+    """(cost, cell) of the cheapest reachable cell with a clear line to `target` within the ranges, every cell tried
+    (cheapest first)."""
     free = (grid >= 0) & (grid < FREE_THRESH)
-    best = (np.inf, None)
-    for cell in np.argwhere(np.isfinite(value)):
-        d = np.linalg.norm(cell - np.asarray(target))
-        if not float(params.min_range) <= d * RES <= float(params.max_range):
-            continue
-        cost = value[tuple(cell)] + float(params.range_weight) * d
-        if cost < best[0] and _clear(free, target, cell):
-            best = (cost, tuple(cell))
-    return best
+    cells = np.argwhere(np.isfinite(value))
+    d = np.linalg.norm(cells - np.asarray(target), axis=1)
+    near = (d * RES >= float(params.min_range)) & (d * RES <= float(params.max_range))
+    cells, d = cells[near], d[near]
+    cost = value[cells[:, 0], cells[:, 1]] + float(params.range_weight) * d
+    for k in np.argsort(cost, kind="stable"):
+        if _clear(free, target, cells[k]):
+            return cost[k], tuple(cells[k])
+    return np.inf, None
+
+
+def _eligible(grid, excluded=None, min_size=float(PARAMS.min_size)):
+    """Frontier cells (unknown, a free 4-neighbour) of 8-connected clusters at least min_size long, not excluded."""
+    free = (grid >= 0) & (grid < FREE_THRESH)
+    padded = np.pad(free, 1)
+    touches = padded[:-2, 1:-1] | padded[2:, 1:-1] | padded[1:-1, :-2] | padded[1:-1, 2:]
+    mask = (grid < 0) & touches
+    labels, _ = ndimage.label(mask, structure=np.ones((3, 3)))
+    sizes = np.bincount(labels.ravel())
+    out = mask & (sizes[labels] * RES >= min_size - 1e-6)
+    return out if excluded is None else out & ~excluded
+
+
+def _check_cost(out, value):
+    """The reported cost is the goal's cost-to-go plus range_weight times its distance to the target."""
+    goal, target = np.asarray(out.goal_rc), np.asarray(out.target_rc)
+    expected = value[tuple(goal)] + float(PARAMS.range_weight) * np.linalg.norm(goal - target)
+    np.testing.assert_allclose(float(out.cost), expected, rtol=1e-5)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -146,33 +167,34 @@ def test_slot_is_looked_into_from_its_mouth_as_the_brute_force_search_finds():
     grid = _room_with_slot()
     value = _value(grid, (20, 20), blocked_rows_from=60)
     out = _view(grid, value, (20, 20))
-    assert bool(out.found)
+    assert bool(out.found) and int(out.n_targets) == int(_eligible(grid).sum()) == 8
     target = tuple(np.asarray(out.target_rc))
     assert grid[target] == -1 and 40 <= target[1] < 48  # a frontier cell inside the slot
-    cost, cell = _brute_force(grid, value, target)
+    _check_cost(out, value)
+    # Every target scored (all 8 here) searched over every cell: the cheapest of them.
+    best = min((_brute_force(grid, value, tuple(t)) for t in np.argwhere(_eligible(grid))), key=lambda b: b[0])
     goal = tuple(np.asarray(out.goal_rc))
     free = (grid >= 0) & (grid < FREE_THRESH)
     assert np.isfinite(value[goal]) and _clear(free, target, goal)
     d = np.linalg.norm(np.subtract(goal, target)) * RES
     assert float(PARAMS.min_range) <= d <= float(PARAMS.max_range)
     # The rays' wedges may refuse a cell whose line grazes a corner: within a cell's worth of the best cost.
-    assert cost - 1e-3 <= float(out.cost) <= cost + 2.0, (float(out.cost), cost, goal, cell)
+    assert best[0] - 1e-3 <= float(out.cost) <= best[0] + 2.0, (float(out.cost), best, goal)
     assert 38 <= goal[1] <= 49  # before the mouth, looking along the slot
 
 
-def test_a_walled_off_frontier_and_an_excluded_one_are_not_looked_at():
+def test_a_walled_off_frontier_is_hopeless_and_an_excluded_one_not_looked_at():
     grid = _room_with_slot()
     grid[60:66, 40:48] = 100  # the slot's mouth walled: its unknown cells touch no free cell the robot can see
-    grid[66, 41:47] = 0  # ... but free cells inside keep a frontier there (0.4 m of it)
+    grid[66, 41:47] = 0  # ... but free cells inside keep a frontier there: 6 cells above them, 2 at their ends
     value = _value(grid, (20, 20), blocked_rows_from=60)
     out = _view(grid, value, (20, 20))
-    assert int(out.n_targets) >= 1 and not bool(out.found)
-    hopeless = {tuple(rc) for rc, h in zip(np.asarray(out.scored_rc), np.asarray(out.hopeless)) if h}
-    assert len(hopeless) == int(out.n_targets) and all(66 <= r <= 67 and 40 <= c < 48 for r, c in hopeless)
+    assert not bool(out.found) and int(out.n_targets) == 8 and int(out.n_left) == 0
+    np.testing.assert_array_equal(np.asarray(out.hopeless), _eligible(grid))
 
     open_ = _room_with_slot()
     first = _view(open_, value, (20, 20))
-    assert bool(first.found) and int(first.n_targets) == 8 and not np.asarray(first.hopeless).any()
+    assert bool(first.found) and int(first.n_left) == 8 and not np.asarray(first.hopeless).any()
     excluded = np.zeros(grid.shape, bool)
     excluded[tuple(np.asarray(first.target_rc))] = True
     second = _view(open_, value, (20, 20), excluded)  # another cell of the slot's frontier
@@ -183,25 +205,47 @@ def test_a_walled_off_frontier_and_an_excluded_one_are_not_looked_at():
     assert not bool(again.found) and int(again.n_targets) == 0 and not np.asarray(again.hopeless).any()
 
 
-def test_the_nearest_clusters_are_scored_and_short_ones_skipped():
-    """Two slots, the robot nearer the right one: its view is chosen; a cluster under min_size is no target."""
+def _two_slots():
     grid = _room_with_slot()
     grid[60:78, 70:78] = 0
     grid[66:78, 70:78] = -1
-    value = _value(grid, (20, 90), blocked_rows_from=60)
-    out = _view(grid, value, (20, 90))
+    return grid
+
+
+def test_the_nearest_frontier_cells_are_scored_a_kept_one_first_and_short_clusters_skipped():
+    """Two slots, the robot nearer the right one; 4 targets scored: the 4 eligible cells nearest the robot (NumPy),
+    the view of the cheapest; a target kept in the left slot is chosen over them; a cluster under min_size is none."""
+    grid = _two_slots()
+    robot = (20, 90)
+    value = _value(grid, robot, blocked_rows_from=60)
+    four = ViewParams.default(n_scored=4)
+    out = _view(grid, value, robot, params=four)
+    cells = np.argwhere(_eligible(grid))
+    d2 = np.sort(((cells - robot) ** 2).sum(1))
+    scored = np.asarray(out.scored_rc)
+    np.testing.assert_array_equal(np.sort(((scored - robot) ** 2).sum(1)), d2[:4])
     assert bool(out.found) and 70 <= int(out.target_rc[1]) < 78 and int(out.n_targets) == 16
-    costs = [_brute_force(grid, value, t)[0] for t in ((66, 43), (66, 73))]
-    assert float(out.cost) <= min(costs) + 2.0
+    _check_cost(out, value)
+    best = min((_brute_force(grid, value, tuple(t)) for t in scored), key=lambda b: b[0])
+    assert best[0] - 1e-3 <= float(out.cost) <= best[0] + 2.0
+
+    args = (jnp.asarray(robot), jnp.zeros(grid.shape, bool), FREE_THRESH, four, None)
+    keep = _choose(jnp.asarray(grid), RES, jnp.asarray(value), *args, jnp.array([66, 43]))
+    assert tuple(np.asarray(keep.target_rc)) == (66, 43) and float(keep.cost) > float(out.cost)
+    _check_cost(keep, value)
+    nothing = _choose(jnp.asarray(grid), RES, jnp.asarray(value), *args, jnp.array([-1, -1]))
+    assert tuple(np.asarray(nothing.target_rc)) == tuple(np.asarray(out.target_rc))
+
     short = ViewParams.default(min_size=0.45)  # each slot's frontier is 8 cells = 0.4 m
-    none = _view(grid, value, (20, 90), params=short)
+    none = _view(grid, value, robot, params=short)
     assert int(none.n_targets) == 0 and not bool(none.found)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_random_maps_goal_is_in_view_and_as_cheap_as_the_brute_force_search_for_its_target(seed):
+def test_random_maps_goal_is_in_view_and_as_cheap_as_the_brute_force_search_for_the_targets(seed):
     """Rooms of free cells with scattered walls and unknown blobs, the robot somewhere free: the goal sees its target
-    along a clear line, within the ranges, and costs what the search over every cell finds for that target."""
+    along a clear line, within the ranges, and costs what the search over every cell finds for the targets scored,
+    which are the eligible cells nearest the robot (NumPy)."""
     rng = np.random.default_rng(seed)
     field = ndimage.gaussian_filter(rng.random((60, 60)), 3.0)
     grid = np.where(field > np.quantile(field, 0.7), -1, 0).astype(np.int8)
@@ -210,8 +254,13 @@ def test_random_maps_goal_is_in_view_and_as_cheap_as_the_brute_force_search_for_
     value = _value(grid, robot)
     out = _view(grid, value, robot)
     assert bool(out.found)
+    cells = np.argwhere(_eligible(grid))
+    scored = np.asarray(out.scored_rc)
+    k = int(PARAMS.n_scored)
+    np.testing.assert_array_equal(np.sort(((scored - robot) ** 2).sum(1)), np.sort(((cells - robot) ** 2).sum(1))[:k])
     target, goal = tuple(np.asarray(out.target_rc)), tuple(np.asarray(out.goal_rc))
     free = (grid >= 0) & (grid < FREE_THRESH)
     assert grid[target] == -1 and np.isfinite(value[goal]) and _clear(free, target, goal)
-    cost, _cell = _brute_force(grid, value, target)
-    assert cost - 1e-3 <= float(out.cost) <= cost + 2.0
+    _check_cost(out, value)
+    best = min((_brute_force(grid, value, tuple(t)) for t in scored), key=lambda b: b[0])
+    assert best[0] - 1e-3 <= float(out.cost) <= best[0] + 2.0

@@ -70,7 +70,7 @@ def add_loop_arguments(parser: argparse.ArgumentParser) -> None:
         default="on" if c.view_goals else "off",
         help="once no reachable frontier is left, walk to where a frontier out of reach (a slot too narrow to "
         "enter, one too short to count) lies in plain view and look at it, before exploration counts as finished "
-        f"(default {'on' if c.view_goals else 'off'})",
+        f"(default {'on' if c.view_goals else 'off'}; the baseline variant: never)",
     )
     parser.add_argument(
         "--footprint-padding",

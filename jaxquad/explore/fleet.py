@@ -75,15 +75,15 @@ class ExploreConfig:
     # m added to the footprint's covering disks in the costmap (the planner's and MPPI's inscribed radius): the
     # SLAM pose is off by about 0.1 m (median), and the robot drove its disks to within a cell of mapped walls.
     footprint_padding: float = 0.1
-    spin_rate: float = 0.6  # rad/s, turning in place without a frontier goal
-    finish_time: float = 12.0  # s without a frontier before exploration counts as finished (one turn and more)
+    spin_rate: float = 0.6  # rad/s, turning in place without a goal
+    finish_time: float = 12.0  # s without a goal before exploration counts as finished (one turn and more)
     # Obstacles under the camera's scan plane (a pallet lower than the camera), marked from the depth image's points
     # below it in the full variant's costmap (`kernels.low_obstacles`); off, and always in the baseline: the costmap is
     # the SLAM map's alone. 100 Go2 runs in the warehouse, H200: collided 14 -> 0 in 240 s (README, exploration).
     low_obstacles: bool = True
     # Once no reachable frontier is left, walk to where one out of reach lies in plain view and look at it
-    # (`nav.explore`, `kernels.view_goals`). 100 runs per robot in the house, 600 s, H200, their first version: runs at
-    # 95 % Go2 65 -> 71, Badger 18 -> 25 (README, exploration).
+    # (`nav.explore`, `kernels.view_goals`); the baseline variant's explorer never does (explore_lite's). 100 runs per
+    # robot in the house, 600 s, H200, their first version: runs at 95 % Go2 65 -> 71, Badger 18 -> 25 (README).
     view_goals: bool = True
     # s without an accepted loop closure before the robot drives back to a place mapped a minute or more ago to close
     # one (active loop closing, `jaxquad.nav.revisit`); 0: never.
@@ -179,7 +179,7 @@ class ExploreResult:
     loop_chi2: np.ndarray  # (T, N) consistency chi-square of a loop candidate past the match tests (NaN: none)
     true_pose: np.ndarray  # (T, n_trace, 3)
     pose: np.ndarray  # (T, n_trace, 3) SLAM pose
-    goal: np.ndarray  # (T, n_trace, 3) the frontier goal, x y yaw
+    goal: np.ndarray  # (T, n_trace, 3) the frontier or view goal (or revisited node), x y yaw
     mode: np.ndarray  # (T, n_trace) int8: what commanded the robot (loop.MODES)
     compile_s: float
     run_s: float  # wall time of the chunks and of copying their outputs to the host, compilation excluded
@@ -217,7 +217,9 @@ def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_d
         nav=nav_params,
         # A known cell more likely free than not is free for the frontiers (the map format's 0.196 needs four
         # free readings of a cell in this SLAM's log-odds, so the edge of what was seen would never be a frontier).
-        explore=nav_explore.ExploreParams.default(free_thresh=50.0, view_goals=cfg.view_goals),
+        explore=nav_explore.ExploreParams.default(
+            view_goals=cfg.view_goals and cfg.variant == "full", free_thresh=50.0
+        ),
         revisit=revisit.RevisitParams.default(after=cfg.revisit_after or np.inf),
         # The camera's height above the floor when the robot stands at its home pose.
         low=LowObstacleParams.default(float(fleet.robot.qpos_home[2] + T_bc[2, 3])),

@@ -10,17 +10,19 @@ other ticks) the SLAM map, redrawn from every node's scan if a loop closure has 
 last period (`slam.refresh_map`: the fleet's SLAM skips the redraw in its own step, where under `vmap` one
 robot's closure made every robot wait for a redraw over all its nodes, nearly every tick in a fleet of 100),
 becomes a costmap, `jaxquad.nav.explore.update` picks the nearest reachable
-frontier (progress check and blacklist included) and the plan to it is read off the robot's own
+frontier (progress check and blacklist included), or once none is left a place from which to look at one out of
+reach (a view goal), and the plan to it is read off the robot's own
 cost-to-go (`nav.plan_from_start`). Between plans MPPI follows it on that costmap. With active loop closing
 (`jaxquad.nav.revisit`, off unless its `after` is finite) the goal is for a while an old SLAM node's pose
 instead, when the SLAM has gone that long without a loop closure; the frontier's progress clock waits. With
 `ExploreLoopConfig.low_obstacles` the costmap also holds the obstacles under the scan plane that the depth image
 shows (`kernels.low_obstacles`: a pallet lower than the camera is in no scan, so in no map).
-Without a frontier goal the robot turns in place (`spin_rate`) to look around: at the start, before its map has free
+Without a goal the robot turns in place (`spin_rate`) to look around: at the start, before its map has free
 cells, and when exploration seems done; where the turn would bring its footprint onto a known obstacle of
 the costmap (`kernels.critics.turn_is_clear`) it waits instead, holding the SLAM pose where the wait began
-(`hold_gain`: a trotting gait told to stand still drifts, by centimetres a second). Exploration is finished when no
-frontier has been found for `finish_time` seconds.
+(`hold_gain`: a trotting gait told to stand still drifts, by centimetres a second). Exploration is finished when
+`nav.explore` says so (no goal of either kind, no frontier cell left to score for a view) and no goal has been found
+for `finish_time` seconds.
 
 Nothing from ground truth decides anything: the truth only judges. A run ends `collided` (the base
 footprint overlaps a world box), `lost` (the SLAM pose more than `lost_error` from the truth for
@@ -102,9 +104,9 @@ class ExploreLoopParams(eqx.Module):
     slam: slam.SlamParams
     body: BodyParams
     yaw_rate_std: Float[Array, ""]  # rad/s, std of the leg-odometry yaw rate (the SLAM's leg edges)
-    spin_rate: Float[Array, ""]  # rad/s, turning in place without a frontier goal
+    spin_rate: Float[Array, ""]  # rad/s, turning in place without a goal
     hold_gain: Float[Array, ""]  # 1/s, velocity per m (and yaw rate per rad) back to the pose where a wait began
-    finish_time: Float[Array, ""]  # s without a frontier (turning) before exploration counts as finished
+    finish_time: Float[Array, ""]  # s without a goal (turning) before exploration counts as finished
     lost_error: Float[Array, ""]  # m
     lost_time: Float[Array, ""]  # s
 
@@ -126,9 +128,9 @@ class ExploreLoopState(eqx.Module):
     revisit: revisit.RevisitState
     nav: nav.NavState
     cmd: Float[Array, " 3"]  # body command to the gait controller
-    waiting: Bool[Array, ""]  # no frontier goal and no clear turn: holding `held_at`
+    waiting: Bool[Array, ""]  # no goal and no clear turn: holding `held_at`
     held_at: Float[Array, " 3"]  # the SLAM pose where the wait began
-    no_goal_for: Float[Array, ""]  # s since a frontier goal was last found
+    no_goal_for: Float[Array, ""]  # s since a goal (frontier or view) was last found
     lost_for: Float[Array, ""]  # s the SLAM pose error has stayed above lost_error
     distance: Float[Array, ""]  # m walked (true path, in the plane)
     outcome: Int[Array, ""]  # OUTCOMES code
@@ -144,7 +146,7 @@ class ExploreOutput(eqx.Module):
     pose: Float[Array, "*B 3"]  # SLAM pose
     error: Float[Array, "*B"]  # m, SLAM position error
     coverage: Float[Array, "*B"]  # known-free over true reachable free cells
-    goal: Float[Array, "*B 3"]  # the frontier goal, or the revisited node's pose
+    goal: Float[Array, "*B 3"]  # the frontier or view goal, or the revisited node's pose
     has_goal: Bool[Array, "*B"]
     revisiting: Bool[Array, "*B"]  # the goal is a revisit (`jaxquad.nav.revisit`)
     viewing: Bool[Array, "*B"]  # the goal is a view goal (`jaxquad.nav.explore`)
@@ -166,7 +168,7 @@ def coverage(values: Int[Array, "H W"], reachable: Bool[Array, "H W"]) -> Float[
 
 
 def goal_of(ex: explore.ExploreState, rv: revisit.RevisitState) -> tuple[Float[Array, " 3"], Bool[Array, ""]]:
-    """(goal pose, whether there is one): the revisited node while a revisit lasts, else the frontier goal."""
+    """(goal pose, whether there is one): the revisited node while a revisit lasts, else the frontier or view goal."""
     return jnp.where(rv.active, rv.goal, ex.goal), rv.active | ex.has_goal
 
 
@@ -179,7 +181,7 @@ def idle_command(
     waiting: Bool[Array, ""],
     held_at: Float[Array, " 3"],
 ) -> tuple[Float[Array, " 3"], Float[Array, " 3"]]:
-    """(command, pose held) without a frontier goal: turn in place at `spin_rate` (rad/s) where the turn is clear,
+    """(command, pose held) without a goal: turn in place at `spin_rate` (rad/s) where the turn is clear,
     else wait, holding the SLAM pose where the wait began (`pose` on its first tick, `held_at` after: a trotting
     gait told to stand still drifts) by a proportional step (`hold_gain`, 1/s, within `controller`'s limits).
     A hold point more than `HOLD_RADIUS` away (the SLAM pose jumped at a loop closure; the drift is centimetres)
@@ -374,7 +376,7 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
             goal=goal,
             has_goal=has_goal,
             revisiting=rv.active,
-            viewing=ex.viewing & ex.has_goal & ~rv.active,
+            viewing=ex.viewing & ~rv.active,
             mode=mode.astype(jnp.int8),
             active=active,
             loop_closed=loop_closed,

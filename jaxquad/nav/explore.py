@@ -13,10 +13,11 @@ When no such frontier is left, a view goal (`kernels.view_goals`) takes its plac
 frontier the robot cannot walk up to (too short, behind a gap too narrow for it, or blacklisted) lies in plain view,
 the goal's yaw facing it. Once the robot has stood within `view_radius` of it, turned to within `view_yaw_tolerance`,
 for `view_dwell` seconds (the SLAM's nodes then hold the view), or after `blacklist_timeout` seconds without
-progress, the cell looked at and its surroundings (a disk of `view_done_radius`) are marked `viewed`, and no view goal
-looks there again; so is every frontier cell scored as a target that no reachable cell sees (`kernels.view_goals`'
-`hopeless`), while no reachable frontier is left, so that the next period scores the next ones. A frontier that
-becomes reachable goes first. `done` is set when neither kind of goal is left and no frontier cell is left to score.
+progress (its goal then blacklisted too), the cell looked at and its surroundings (a disk of `view_done_radius`) are
+marked `viewed`, and no view goal looks there again; so is every frontier cell scored as a target that no reachable
+cell sees (`kernels.view_goals`' `hopeless`), while no reachable frontier is left, so that the next period scores the
+next ones. The current target is kept while it is in view (commitment, as for frontiers). A frontier that becomes
+reachable goes first. `done` is set when neither kind of goal is left and no frontier cell is left to score.
 Navigation to the goal is `jaxquad.nav`.
 """
 
@@ -42,7 +43,7 @@ class ExploreParams(eqx.Module):
     reach_radius: Float[Array, ""]  # m: a goal this close is done with (blacklisted if its frontier is left)
     start_tolerance: Float[Array, ""]  # m: a robot on a blocked cell plans from the nearest open cell
     view: ViewParams
-    view_goals: Bool[Array, ""]  # look at frontiers out of reach once no reachable one is left
+    view_goals: bool = eqx.field(static=True)  # look at frontiers out of reach once no reachable one is left
     view_radius: Float[Array, ""]  # m: a view goal this close ...
     view_yaw_tolerance: Float[Array, ""]  # rad: ... with the heading this close to its yaw ...
     view_dwell: Float[Array, ""]  # s: ... for this long is done with
@@ -61,12 +62,12 @@ class ExploreParams(eqx.Module):
             reach_radius=f32(0.5),
             start_tolerance=f32(0.5),
             view=ViewParams.default(),
-            view_goals=jnp.asarray(view_goals),
-            # The navigation's arrival tolerances (0.25 m, 0.25 rad), and three planning periods standing there: the
-            # SLAM adds a node on 0.02 rad of rotation or 0.1 m of travel, at most every 0.5 s, and the map needs two
-            # scans' misses for a free cell.
+            view_goals=bool(view_goals),
+            # The navigation's arrival tolerances (0.25 m, 0.25 rad) and a margin (the gait drifts a standing robot),
+            # and three planning periods standing there: the SLAM adds a node on 0.02 rad of rotation or 0.1 m of
+            # travel, at most every 0.5 s, and the map needs two scans' misses for a free cell.
             view_radius=f32(0.3),
-            view_yaw_tolerance=f32(0.25),
+            view_yaw_tolerance=f32(0.35),
             view_dwell=f32(3.0),
             # Three cells: a view that revealed some of a frontier moves its cells farther than that; one that
             # revealed nothing leaves them, and the neighbours of the cell looked at are looked at no more.
@@ -144,33 +145,42 @@ def update(
         return d2 <= (radius / grid.resolution) ** 2
 
     around_goal = disk(state.goal[:2], params.blacklist_radius)
-    blacklist = state.blacklist | (drop & around_goal)
+    # A goal of either kind the robot made no progress towards is blacklisted: no goal of either kind goes there.
+    blacklist = state.blacklist | ((drop | (state.viewing & stalled)) & around_goal)
     viewed = state.viewed | (looked & disk(state.target, params.view_done_radius))
 
     if value is None:
         _, value = robot_value(params, grid, pose)
     keep = around_goal & state.has_goal & ~state.viewing & ~drop
     # A goal already within reach of the robot is one it stands at without seeing (it would also turn there).
-    r = grid.cell_of(pose[:2])
-    here = ((rr - r[0]) ** 2 + (cc - r[1]) ** 2).astype(jnp.float32) <= (params.reach_radius / grid.resolution) ** 2
+    here = disk(pose[:2], params.reach_radius)
     clusters = frontier_clusters(occupancy, params.frontier.free_thresh)
     choice = choose_frontier(occupancy, grid.resolution, value, blacklist | here, params.frontier, keep, clusters)
-    view = choose_view(occupancy, grid.resolution, value, r, viewed, params.frontier.free_thresh, params.view, clusters)
-    viewing = ~choice.found & view.found & params.view_goals
-    # Targets no reachable cell sees are excluded too, while views are sought, so the next ones get scored.
-    hopeless = view.hopeless & ~choice.found & params.view_goals
-    for k in range(params.view.n_scored):
-        viewed = viewed | (hopeless[k] & disk(grid.center_of(view.scored_rc[k]), params.view_done_radius))
-    # Not done while frontier cells are left to score: the next period scores the next ones.
-    pending = params.view_goals & ~choice.found & (view.n_targets > jnp.sum(hopeless))
+    if params.view_goals:
+        kept = jnp.where(state.viewing & state.has_goal & ~looked, grid.cell_of(state.target), -1)
+        view_value = jnp.where(blacklist, jnp.inf, value)
+        args = (view_value, grid.cell_of(pose[:2]), viewed, params.frontier.free_thresh, params.view, clusters, kept)
+        view = choose_view(occupancy, grid.resolution, *args)
+        viewing = ~choice.found & view.found
+        # While views are sought, the targets no reachable cell sees are set aside, so the next ones get scored,
+        # and exploration is not done while any are left to score.
+        viewed = viewed | (view.hopeless & ~choice.found)
+        pending = ~choice.found & (view.n_left > 0)
+        view_rc, target_rc = view.goal_rc, view.target_rc
+    else:
+        viewing = pending = jnp.array(False)
+        view_rc = target_rc = choice.goal_rc
 
-    xy = grid.center_of(jnp.where(viewing, view.goal_rc, choice.goal_rc))
-    toward = jnp.where(viewing, grid.center_of(view.target_rc), xy)
+    xy = grid.center_of(jnp.where(viewing, view_rc, choice.goal_rc))
+    target = jnp.where(viewing, grid.center_of(target_rc), state.target)
+    toward = jnp.where(viewing, target, xy)
     origin = jnp.where(viewing, xy, pose[:2])
     goal = jnp.append(xy, jnp.arctan2(toward[1] - origin[1], toward[0] - origin[0]))
-    # A goal that moved by more than the blacklist radius, or changed kind, is a new goal: the clocks restart.
-    kept = state.has_goal & ~drop & ~looked & (viewing == state.viewing)
-    same = kept & (jnp.linalg.norm(xy - state.goal[:2]) <= params.blacklist_radius)
+    # A goal that moved by more than the blacklist radius, or changed kind, is a new goal: the clocks restart; the
+    # time spent looking counts for its own target only.
+    kept_goal = state.has_goal & ~drop & ~looked & (viewing == state.viewing)
+    same = kept_goal & (jnp.linalg.norm(xy - state.goal[:2]) <= params.blacklist_radius)
+    same_target = same & (jnp.linalg.norm(target - state.target) <= params.view_done_radius)
     new_distance = jnp.linalg.norm(xy - pose[:2])
     state = ExploreState(
         blacklist=blacklist,
@@ -180,8 +190,8 @@ def update(
         since_progress=jnp.where(same, since, 0.0),
         done=~(choice.found | viewing | pending),
         viewing=viewing,
-        target=jnp.where(viewing, grid.center_of(view.target_rc), state.target),
+        target=target,
         viewed=viewed,
-        view_time=jnp.where(same, view_time, 0.0),
+        view_time=jnp.where(same_target, view_time, 0.0),
     )
     return state, choice
