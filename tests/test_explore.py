@@ -7,6 +7,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _slot_maps import room_with_slots
 
 from jaxquad import nav
 from jaxquad.kernels import mppi
@@ -124,13 +125,7 @@ def test_goal_is_kept_until_reached_then_blacklisted():
 def _room_with_slot():
     """4 x 4 m room, all known; in its top wall a slot 0.4 m wide whose inner part is unknown (a frontier 0.4 m
     long, under min_size, in cells the robot cannot reach)."""
-    grid = np.zeros((80, 80), np.int8)
-    grid[[0, -1], :] = 100
-    grid[:, [0, -1]] = 100
-    grid[60:, :] = 100
-    grid[60:78, 36:44] = 0
-    grid[66:78, 36:44] = -1
-    return grid
+    return room_with_slots(80, (36,))
 
 
 def test_a_slot_out_of_reach_is_looked_into_then_exploration_is_done():
@@ -185,10 +180,7 @@ def test_targets_nothing_sees_are_set_aside_so_a_farther_one_gets_its_view():
 
 
 def _two_slots():
-    grid = _room_with_slot()
-    grid[60:78, 8:16] = 0  # a second slot in the top wall, at the room's left
-    grid[66:78, 8:16] = -1
-    return grid
+    return room_with_slots(80, (36, 8))  # a second slot in the top wall, at the room's left
 
 
 def test_a_view_goal_is_kept_as_the_robot_walks_and_one_without_progress_is_set_aside_and_blacklisted():

@@ -5,6 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _slot_maps import room_with_slots
 from scipy import ndimage
 
 from jaxquad.kernels.planner import cost_to_go
@@ -50,13 +51,7 @@ def _blocked_from(free, target, start, direction, t_max, min_chord):
 
 def _room_with_slot():
     """4 x 3 m room; in its top wall a slot 0.4 m wide and 0.9 m deep whose inner 0.6 m are unknown."""
-    g = np.zeros((80, 100), np.int8)
-    g[[0, -1], :] = 100
-    g[:, [0, -1]] = 100
-    g[60:, :] = 100
-    g[60:78, 40:48] = 0
-    g[66:78, 40:48] = -1
-    return g
+    return room_with_slots(100, (40,))
 
 
 def _value(grid, start_rc, blocked_rows_from=None):
@@ -206,10 +201,7 @@ def test_a_walled_off_frontier_is_hopeless_and_an_excluded_one_not_looked_at():
 
 
 def _two_slots():
-    grid = _room_with_slot()
-    grid[60:78, 70:78] = 0
-    grid[66:78, 70:78] = -1
-    return grid
+    return room_with_slots(100, (40, 70))
 
 
 def test_the_nearest_frontier_cells_are_scored_a_kept_one_first_and_short_clusters_skipped():
