@@ -18,6 +18,10 @@ moved `progress_radius` from its last progress point for `progress_timeout`, for
 turns in place at `recovery_yaw_rate` if the turn keeps them off known obstacles (`critics.turn_is_clear`), else
 stands still (in a gap barely wider than the body neither is safe); then the nominal sequence restarts from
 zero.
+
+Standing (arrived, or a recovery that may neither back up nor turn) holds the pose where it began (`hold`): a
+trotting gait told to stand still drifts by centimetres a second, enough to walk a robot pressed against an
+obstacle's padding into it.
 """
 
 from __future__ import annotations
@@ -57,6 +61,8 @@ class MppiParams(eqx.Module):
     recovery_time: Float[Array, ""]  # s
     backup_speed: Float[Array, ""]  # m/s
     recovery_yaw_rate: Float[Array, ""]  # rad/s
+    hold_gain: Float[Array, ""]  # 1/s: velocity per m (and yaw rate per rad) back to the pose where standing began
+    hold_radius: Float[Array, ""]  # m: a hold point farther than this (the pose jumped) is given up for the pose
     n_samples: int = eqx.field(static=True)
     horizon: int = eqx.field(static=True)
     path_window: int = eqx.field(static=True)  # path points scored by the path-align critic
@@ -92,6 +98,8 @@ class MppiParams(eqx.Module):
             "recovery_time": 2.0,
             "backup_speed": 0.1,
             "recovery_yaw_rate": 0.5,
+            "hold_gain": 2.0,
+            "hold_radius": 0.15,
         }
         values.update(overrides)
         leaves = {k: jnp.asarray(v, jnp.float32) for k, v in values.items()}
@@ -105,6 +113,8 @@ class MppiState(eqx.Module):
     since_progress: Float[Array, ""]  # s
     recovery_left: Float[Array, ""]  # s of recovery behaviour still to run
     recovery_cmd: Float[Array, " 3"]
+    held_at: Float[Array, " 3"]  # the pose where standing began
+    holding: Bool[Array, ""]  # the last tick stood
 
 
 class MppiInputs(eqx.Module):
@@ -135,6 +145,8 @@ def init(params: MppiParams, pose: Float[Array, " 3"]) -> MppiState:
         since_progress=jnp.zeros((), jnp.float32),
         recovery_left=jnp.zeros((), jnp.float32),
         recovery_cmd=z3,
+        held_at=jnp.asarray(pose, jnp.float32),
+        holding=jnp.array(False),
     )
 
 
@@ -206,6 +218,20 @@ def toward_pose(
     return jnp.append(v_xy, yaw_rate)
 
 
+def hold(
+    params: MppiParams, pose: Float[Array, " 3"], held_at: Float[Array, " 3"], holding: Bool[Array, ""]
+) -> tuple[Float[Array, " 3"], Float[Array, " 3"]]:
+    """(command, pose held) of a robot told to stand: a proportional step (`hold_gain`) back to the pose where
+    standing began (`pose` on its first tick, `held_at` while `holding`), since a trotting gait told to stand
+    still drifts. A hold point more than `hold_radius` away (the pose jumped, as at a loop closure; the drift is
+    centimetres) is given up for the pose itself rather than walked back to unchecked; a non-finite pose stands
+    still."""
+    far = jnp.linalg.norm(pose[:2] - held_at[:2]) > params.hold_radius
+    held_at = jnp.where(holding & ~far, held_at, pose)
+    cmd = toward_pose(params, pose, held_at, params.hold_gain, params.hold_gain)
+    return jnp.where(jnp.all(jnp.isfinite(pose)), cmd, 0.0), held_at
+
+
 def _recovery_command(params: MppiParams, pose, grid: CostGrid) -> Float[Array, " 3"]:
     # Back up only if the footprint's disks stay clear along the whole backup (and a margin beyond it).
     back = params.backup_speed * params.recovery_time + _BACKUP_MARGIN
@@ -260,6 +286,9 @@ def step(params: MppiParams, state: MppiState, inputs: MppiInputs) -> tuple[Mppi
     recovery_left = jnp.where(start_recovery, params.recovery_time, state.recovery_left)
     recovering = recovery_left > 0.5 * params.dt
     cmd = jnp.where(recovering, recovery_cmd, cmd)
+    standing = jnp.where(recovering, jnp.all(recovery_cmd == 0.0), arrived) & valid
+    hold_cmd, held_at = hold(params, pose, state.held_at, state.holding)
+    cmd = jnp.where(standing, hold_cmd, cmd)
     ended = recovering & (recovery_left < 1.5 * params.dt)
     since = jnp.where(recovering, 0.0, since)
     anchor = jnp.where(recovering, pose[:2], anchor)
@@ -274,6 +303,8 @@ def step(params: MppiParams, state: MppiState, inputs: MppiInputs) -> tuple[Mppi
         since_progress=since,
         recovery_left=jnp.maximum(recovery_left - params.dt, 0.0),
         recovery_cmd=recovery_cmd,
+        held_at=held_at,
+        holding=standing,
     )
     best = rollout(pose, nominal, params.dt)
     out = MppiOutput(

@@ -121,7 +121,7 @@ def test_without_a_goal_the_robot_turns_or_holds_where_its_wait_began():
     from jaxquad.explore.loop import idle_command
     from jaxquad.kernels.mppi import MppiParams
 
-    params = (MppiParams.default(), jnp.float32(0.6), jnp.float32(2.0))
+    params = (MppiParams.default(hold_gain=2.0), jnp.float32(0.6))
     pose, start = jnp.array([1.0, 2.0, 0.5]), jnp.array([0.95, 2.1, 0.4])
     cmd, held = idle_command(*params, pose, jnp.array(True), jnp.array(True), start)
     np.testing.assert_allclose(cmd, [0.0, 0.0, 0.6])  # a clear turn wins over a wait going on

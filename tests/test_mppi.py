@@ -49,14 +49,17 @@ def _plan(grid: CostGrid, start, goal):
 
 
 @eqx.filter_jit
-def _closed_loop(grid, start, goal, key, params=PARAMS):
+def _closed_loop(grid, start, goal, key, params=PARAMS, drift=None):
+    """300 ticks of the kinematic model, with `drift` (world-frame x, y (m/s), yaw rate) added whatever the
+    command: a trotting gait that creeps."""
     path, valid, _ = _plan(grid, start, goal)
+    drift = jnp.zeros(3) if drift is None else drift
 
     def tick(carry, k):
         pose, state = carry
         inputs = mppi.MppiInputs(pose=pose, path=path, path_valid=valid, goal=goal, grid=grid, key=k)
         state, out = mppi.step(params, state, inputs)
-        pose = mppi.rollout(pose, out.cmd[None], params.dt)[0]
+        pose = mppi.rollout(pose, out.cmd[None], params.dt)[0] + drift * params.dt
         return (pose, state), (pose, out.arrived, out.cmd)
 
     keys = jax.random.split(key, 300)
@@ -201,6 +204,56 @@ def test_backup_checks_the_footprint():
     assert not bool(turn_is_clear(corner, grid, disks))
     rec, cmd = (np.asarray(a) for a in run(grid, corner, 13, disks))
     assert rec[11] and np.all(cmd[11] == 0.0), cmd[11]
+
+
+def test_a_robot_that_creeps_holds_where_it_arrived():
+    """A gait creeping 3 cm/s backwards (world -x) once arrived: the hold step (gain k = 2/s) pulls it back to the
+    pose where it arrived, up to the steady offset v / k = 1.5 cm of the discrete loop e <- e (1 - k dt) + v dt;
+    with the gain at 0 it creeps on until the goal tolerance (0.25 m) sends it back."""
+    grid = _world()
+    start, goal = jnp.array([0.6, 2.0, 0.0]), jnp.array([3.4, 2.1, math.pi / 2])
+    drift = jnp.array([-0.03, 0.0, 0.0])
+    for gain, far in ((2.0, False), (0.0, True)):
+        params = eqx.tree_at(lambda p: p.hold_gain, PARAMS, jnp.float32(gain))
+        poses, arrived, _ = _closed_loop(grid, start, goal, jax.random.key(0), params, drift)
+        poses, arrived = np.asarray(poses), np.asarray(arrived)
+        first = int(np.argmax(arrived))
+        assert arrived.any() and first < 250, first
+        there = poses[first - 1]  # the pose its first standing tick saw
+        off = np.linalg.norm(poses[first:, :2] - there[:2], axis=1)
+        if far:
+            assert off.max() > 0.1, off.max()  # creeping on, to the goal tolerance's edge
+        else:
+            assert np.all(off < 0.016), off.max()
+            np.testing.assert_allclose(off[-1], 0.015, atol=1e-3)
+
+
+def test_a_recovery_that_stands_holds_its_pose():
+    """The corner of the test above, where the stuck robot may neither back up nor turn: once its pose moves
+    (a creep of 2 cm), the command walks it back to where the recovery began (toward_pose with the hold gain)."""
+    disks, radius = footprint_disks(jnp.array([-0.076, 0.0]), jnp.array([0.315, 0.17]))
+    grid = _world(float(radius))
+    params = mppi.MppiParams.default(
+        n_samples=64, horizon=10, progress_timeout=1.0, recovery_time=2.0, footprint_disks=disks
+    )
+    corner = jnp.array([0.575, 0.3, 0.0])
+    poses = jnp.concatenate([jnp.tile(corner, (12, 1)), jnp.tile(corner + jnp.array([0.02, -0.01, 0.05]), (3, 1))])
+
+    def tick(state, xs):
+        pose, k = xs
+        inputs = mppi.MppiInputs(pose, jnp.tile(jnp.array([3.4, 3.4]), (8, 1)), jnp.ones(8, bool),
+                                 jnp.array([3.4, 3.4, 0.0]), grid, k)  # fmt: skip
+        state, out = mppi.step(params, state, inputs)
+        return state, (out.recovering, out.cmd)
+
+    rec, cmd = jax.jit(
+        lambda: jax.lax.scan(tick, mppi.init(params, corner), (poses, jax.random.split(jax.random.key(0), 15)))[1]
+    )()
+    rec, cmd = np.asarray(rec), np.asarray(cmd)
+    assert rec[11:].all() and np.all(cmd[11] == 0.0), (rec, cmd[11])
+    want = mppi.toward_pose(params, poses[12], corner, params.hold_gain, params.hold_gain)
+    np.testing.assert_allclose(cmd[12:], np.tile(np.asarray(want), (3, 1)), atol=1e-6)
+    assert cmd[12, 0] < 0 and cmd[12, 2] < 0  # back towards the corner, and turning back
 
 
 @pytest.mark.parametrize("yaw", [0.0, 0.7, -2.5])

@@ -228,7 +228,6 @@ def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_d
         body=body,
         yaw_rate_std=f32(values["leg_yaw_rate_std"]),
         spin_rate=f32(cfg.spin_rate),
-        hold_gain=f32(2.0),
         finish_time=f32(cfg.finish_time),
         lost_error=f32(0.5),
         lost_time=f32(2.0),

@@ -20,7 +20,7 @@ shows (`kernels.low_obstacles`: a pallet lower than the camera is in no scan, so
 Without a goal the robot turns in place (`spin_rate`) to look around: at the start, before its map has free
 cells, and when exploration seems done; where the turn would bring its footprint onto a known obstacle of
 the costmap (`kernels.critics.turn_is_clear`) it waits instead, holding the SLAM pose where the wait began
-(`hold_gain`: a trotting gait told to stand still drifts, by centimetres a second). Exploration is finished when
+(`kernels.mppi.hold`: a trotting gait told to stand still drifts, by centimetres a second). Exploration is finished when
 `nav.explore` says so (no goal of either kind, no frontier cell left to score for a view) and no goal has been found
 for `finish_time` seconds.
 
@@ -66,7 +66,6 @@ RUNNING, EXPLORED, COLLIDED, LOST, FALLEN = range(len(OUTCOMES))
 # still without a goal where that turn is blocked, or nothing (the run had ended).
 MODES = ("mppi", "goal_turn", "arrived", "recovery", "spin", "wait", "ended")
 MPPI, GOAL_TURN, ARRIVED, RECOVERY, SPIN, WAIT, ENDED = range(len(MODES))
-HOLD_RADIUS = 0.15  # m: a waiting robot farther than this from its hold point holds where it is instead
 LOW_MARGIN = 0.2  # m: a low obstacle counts where it is this much nearer than the 2D scan's return
 
 
@@ -105,7 +104,6 @@ class ExploreLoopParams(eqx.Module):
     body: BodyParams
     yaw_rate_std: Float[Array, ""]  # rad/s, std of the leg-odometry yaw rate (the SLAM's leg edges)
     spin_rate: Float[Array, ""]  # rad/s, turning in place without a goal
-    hold_gain: Float[Array, ""]  # 1/s, velocity per m (and yaw rate per rad) back to the pose where a wait began
     finish_time: Float[Array, ""]  # s without a goal (turning) before exploration counts as finished
     lost_error: Float[Array, ""]  # m
     lost_time: Float[Array, ""]  # s
@@ -175,20 +173,15 @@ def goal_of(ex: explore.ExploreState, rv: revisit.RevisitState) -> tuple[Float[A
 def idle_command(
     controller: mppi.MppiParams,
     spin_rate: Float[Array, ""],
-    hold_gain: Float[Array, ""],
     pose: Float[Array, " 3"],
     can_turn: Bool[Array, ""],
     waiting: Bool[Array, ""],
     held_at: Float[Array, " 3"],
 ) -> tuple[Float[Array, " 3"], Float[Array, " 3"]]:
     """(command, pose held) without a goal: turn in place at `spin_rate` (rad/s) where the turn is clear,
-    else wait, holding the SLAM pose where the wait began (`pose` on its first tick, `held_at` after: a trotting
-    gait told to stand still drifts) by a proportional step (`hold_gain`, 1/s, within `controller`'s limits).
-    A hold point more than `HOLD_RADIUS` away (the SLAM pose jumped at a loop closure; the drift is centimetres)
-    is given up for the pose itself rather than walked back to unchecked; a non-finite pose stands still."""
-    far = jnp.linalg.norm(pose[:2] - held_at[:2]) > HOLD_RADIUS
-    held_at = jnp.where(waiting & ~far, held_at, pose)
-    hold = mppi.toward_pose(controller, pose, held_at, hold_gain, hold_gain)
+    else wait, holding the SLAM pose where the wait began (`kernels.mppi.hold`, with `controller`'s gain,
+    radius and limits)."""
+    hold, held_at = mppi.hold(controller, pose, held_at, waiting)
     cmd = jnp.where(can_turn, jnp.array([0.0, 0.0, 1.0]) * spin_rate, hold)
     return jnp.where(jnp.all(jnp.isfinite(pose)), cmd, 0.0), held_at
 
@@ -324,9 +317,7 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
         key, k_nav = jax.random.split(s.key)
         nav_state, ctrl = nav.step(params.nav, nav_state, nav.NavInputs(pose=s.pose, goal=goal, grid=grid, key=k_nav))
         can_turn = critics.turn_is_clear(s.pose, grid, params.nav.controller.footprint_disks)
-        idle, held_at = idle_command(
-            params.nav.controller, params.spin_rate, params.hold_gain, s.pose, can_turn, s.waiting, s.held_at
-        )
+        idle, held_at = idle_command(params.nav.controller, params.spin_rate, s.pose, can_turn, s.waiting, s.held_at)
         cmd = jnp.where(has_goal, ctrl.cmd, idle)
         mode = jnp.select(
             [~active, ~has_goal & can_turn, ~has_goal, ctrl.recovering, ctrl.arrived, ctrl.goal_turn],
