@@ -11,7 +11,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from jaxquad.kernels.costmap import INSCRIBED, UNKNOWN, CostGrid
+from jaxquad.kernels.costmap import INSCRIBED, LETHAL, UNKNOWN, CostGrid
 from jaxquad.kernels.lie import R2, wrap_angle
 
 
@@ -40,7 +40,11 @@ def turn_is_clear(
 
 
 def obstacle(
-    traj: Float[Array, "S T 3"], grid: CostGrid, collision_cost: Float[Array, ""], p_base_disk: Float[Array, "K 2"]
+    traj: Float[Array, "S T 3"],
+    grid: CostGrid,
+    collision_cost: Float[Array, ""],
+    p_base_disk: Float[Array, "K 2"],
+    p_base_outline: Float[Array, "C 2"] | None = None,
 ) -> Float[Array, " S"]:
     """Mean inflation cost (0..1 of 252) along the trajectory at the worst of the footprint's covering disks
     (centres `p_base_disk` in the base frame, m; `kernels.footprint.footprint_disks`), plus, if a disk centre
@@ -51,10 +55,15 @@ def obstacle(
     is entering the padding. The depth grades what a flat collision cost cannot: a robot that has drifted into
     the padding, where every sample enters it, prefers the samples that leave it soonest and go least deep.
     Unknown cells beyond the inflation have depth 0: a sample entering unknown space alone costs the collision
-    cost once."""
+    cost once. Unknown cells are not inflated, so a footprint's corner can reach into cells no scan has seen (an
+    obstacle's face behind the robot) while its disks' centres stay clear: with `p_base_outline` (points of the
+    footprint's outline, base frame, m; `kernels.footprint.footprint_outline`) a sample also collides where one of
+    them lands on a lethal or unknown cell."""
     centres = _disk_centres(traj, p_base_disk)
     cost = jnp.max(grid.cost_at(centres), axis=-1)  # footprint_cost, from the centres computed once
     hit = jnp.any(cost >= INSCRIBED, axis=-1)
+    if p_base_outline is not None and p_base_outline.shape[0]:
+        hit = hit | jnp.any(grid.cost_at(_disk_centres(traj, p_base_outline)) >= LETHAL, axis=(-2, -1))
     soft = jnp.mean(jnp.minimum(cost, INSCRIBED - 1) / (INSCRIBED - 1), axis=-1)
     depth = jnp.max(grid.depth_at(centres), axis=-1)  # (S, T)
     graded = 1.0 + jnp.max(depth, axis=-1) + jnp.mean(depth, axis=-1)

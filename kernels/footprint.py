@@ -1,5 +1,5 @@
 """A robot's rectangular planform: its overlap with the yaw-rotated boxes of a world (the collision judge),
-and the disks that cover it (what a costmap-based controller checks).
+the disks that cover it (what a costmap-based controller checks), and points of its outline.
 
 Two rectangles in the plane are disjoint exactly when their projections onto one of the four edge
 normals (two per rectangle) are disjoint (the separating axis theorem); otherwise they overlap
@@ -37,6 +37,16 @@ def footprint_disks(
     offsets = long * (2.0 * jnp.arange(n, dtype=jnp.float32) + 1.0 - n) / n  # slice centres
     axis = jnp.where(along_x, jnp.array([1.0, 0.0]), jnp.array([0.0, 1.0]))
     return center + offsets[:, None] * axis, jnp.sqrt(short**2 + (long / n) ** 2)
+
+
+def footprint_outline(center: Float[Array, " 2"], half_extents: Float[Array, " 2"]) -> Float[Array, "6 2"]:
+    """Points of the rectangle's outline (base frame, m): its 4 corners and the middles of its 2 long sides, the
+    points a turn swings farthest."""
+    center, half = jnp.asarray(center, jnp.float32), jnp.asarray(half_extents, jnp.float32)
+    signs = jnp.array([[1.0, 1.0], [1.0, -1.0], [-1.0, 1.0], [-1.0, -1.0]])
+    long_x = half[0] >= half[1]
+    sides = jnp.where(long_x, jnp.array([[0.0, 1.0], [0.0, -1.0]]), jnp.array([[1.0, 0.0], [-1.0, 0.0]]))
+    return center + jnp.concatenate([signs, sides]) * half
 
 
 def footprint_overlaps(boxes: Boxes, pose: Float[Array, " 3"], half_extents: Float[Array, " 2"]) -> Bool[Array, " B"]:

@@ -50,6 +50,7 @@ class MppiParams(eqx.Module):
     weights: Float[Array, " 7"]  # obstacle, goal distance, goal heading, path follow, path align, path heading, smooth
     collision_cost: Float[Array, ""]  # added to the obstacle critic for a trajectory entering a >= 253 cell
     footprint_disks: Float[Array, "K 2"]  # m, base-frame centres of the disks the obstacle critic checks
+    footprint_outline: Float[Array, "C 2"]  # m, base-frame outline points kept off lethal and unknown cells (C >= 0)
     near_goal_radius: Float[Array, ""]  # m: goal critics replace path critics inside this (straight and along the path)
     lookahead: Float[Array, ""]  # m along the path from the robot's nearest path point to the carrot
     goal_xy_tol: Float[Array, ""]  # m
@@ -76,7 +77,8 @@ class MppiParams(eqx.Module):
         **overrides,
     ) -> MppiParams:
         """`footprint_disks` defaults to one disk at the base origin (a round robot of the costmap's inscribed
-        radius); `kernels.footprint.footprint_disks` gives a rectangular robot's."""
+        radius) and `footprint_outline` to none; `kernels.footprint.footprint_disks` and `footprint_outline` give a
+        rectangular robot's."""
         # Speed limits: the paper's DWB limits (0.26 m/s, 0.8 rad/s), sideways and backwards slower.
         values = {
             "dt": 0.1,
@@ -87,6 +89,7 @@ class MppiParams(eqx.Module):
             "weights": (1.0, 8.0, 3.0, 5.0, 2.0, 1.0, 1.0),
             "collision_cost": 1000.0,
             "footprint_disks": ((0.0, 0.0),),
+            "footprint_outline": jnp.zeros((0, 2)),
             "near_goal_radius": 0.8,
             "lookahead": 1.0,
             "goal_xy_tol": 0.25,
@@ -191,7 +194,7 @@ def _sample(params: MppiParams, nominal, key) -> Float[Array, "S T 3"]:
 def _total_cost(params: MppiParams, traj, u, last_cmd, inputs: MppiInputs, near_goal, carrot, window):
     w = params.weights
     terms = (
-        critics.obstacle(traj, inputs.grid, params.collision_cost, params.footprint_disks),
+        critics.obstacle(traj, inputs.grid, params.collision_cost, params.footprint_disks, params.footprint_outline),
         critics.goal_distance(traj, inputs.goal, near_goal),
         critics.goal_heading(traj, inputs.goal, near_goal),
         critics.path_follow(traj, carrot, near_goal),

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxquad.kernels.footprint import footprint_disks, footprint_overlaps
+from jaxquad.kernels.footprint import footprint_disks, footprint_outline, footprint_overlaps
 from jaxquad.kernels.raycast import Boxes
 
 _overlaps = jax.jit(footprint_overlaps)
@@ -91,3 +91,18 @@ def test_disks_cover_the_rectangle_tightly(half):
     long = int(np.argmax(half))
     np.testing.assert_allclose(disks[:, 1 - long], center[1 - long], atol=1e-7)  # on the long axis
     np.testing.assert_allclose(np.diff(disks[:, long]), 2 * max(half) / 3, rtol=1e-5)
+
+
+@pytest.mark.parametrize("half", [(0.315, 0.17), (0.1, 0.4)])
+def test_outline_is_the_corners_and_the_long_sides_middles(half):
+    center = np.array([-0.07, 0.03])
+    got = np.asarray(footprint_outline(jnp.asarray(center), jnp.asarray(half)), float)
+    corners = _corners(*center, *half, 0.0)
+    long = int(np.argmax(half))
+    middles = [center + s * half[1 - long] * np.eye(2)[1 - long] for s in (1, -1)]
+    want = np.concatenate([corners, middles])
+    assert got.shape == (6, 2)
+    # The same points in any order: each wanted point matched by exactly one point given.
+    d = np.linalg.norm(got[:, None] - want[None], axis=-1)
+    np.testing.assert_array_equal(np.sort(d.argmin(axis=1)), np.arange(6))
+    np.testing.assert_allclose(d.min(axis=1), 0.0, atol=1e-6)

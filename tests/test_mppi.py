@@ -380,6 +380,45 @@ def test_critics_match_loop_references():
     assert float(jnp.max(critics.path_align(jnp.asarray(traj), jnp.asarray(window), yes))) == 0.0
 
 
+def test_outline_on_unknown_or_lethal_cells_collides():
+    """A room whose left part no scan has seen: samples whose outline points (NumPy, each rotated into the world)
+    land on an unknown or lethal cell anywhere along them take the collision cost, whatever their disks do."""
+    from jaxquad.kernels import critics
+
+    occ = _room()
+    occ[:, :30] = -1  # unknown, up to x = 1.5 m
+    params = CostmapParams.default(inscribed_radius=0.2)
+    cost, depth = costmap_layers(jnp.asarray(occ), RES, params)
+    grid = CostGrid(cost=cost, origin=jnp.zeros(2), resolution=jnp.asarray(RES), depth=depth)
+    disks = np.array([[0.0, 0.0]], np.float32)
+    outline = np.array([[0.3, 0.17], [0.3, -0.17], [-0.3, 0.17], [-0.3, -0.17], [0.0, 0.17], [0.0, -0.17]], np.float32)
+    rng = np.random.default_rng(5)
+    # Poses by a straight stretch of the unknown's edge (x 1.5 m), clear of the walls' and the block's inscribed zones.
+    start = np.c_[rng.uniform(1.52, 2.3, 40), rng.uniform(0.45, 0.95, 40), rng.uniform(-4, 4, 40)]
+    step = rng.normal(0.0, [0.03, 0.03, 0.3], (40, 1, 3))
+    traj = (start[:, None, :] + np.linspace(0.0, 1.0, 5)[None, :, None] * step).astype(np.float32)
+    args = (jnp.asarray(traj), grid, jnp.float32(1000.0), jnp.asarray(disks))
+    with_outline = np.asarray(critics.obstacle(*args, jnp.asarray(outline)))
+    without = np.asarray(critics.obstacle(*args))
+    cells = np.asarray(cost)
+    n_outline_only = 0
+    for s in range(40):
+        on_bad = False
+        for x, y, th in traj[s]:
+            for dx, dy in outline:
+                px, py = x + math.cos(th) * dx - math.sin(th) * dy, y + math.sin(th) * dx + math.cos(th) * dy
+                r, c = math.floor(py / RES), math.floor(px / RES)
+                on_bad |= not (0 <= r < 80 and 0 <= c < 80) or cells[r, c] >= 254
+        disk_hit = without[s] >= 1000.0
+        assert (with_outline[s] >= 1000.0) == (on_bad or disk_hit), s
+        if on_bad and not disk_hit:
+            n_outline_only += 1
+            np.testing.assert_allclose(with_outline[s] - without[s], 1000.0, rtol=1e-5)  # graded: depth 0 there
+        else:
+            np.testing.assert_allclose(with_outline[s], without[s], rtol=1e-6)
+    assert 5 <= n_outline_only <= 35, n_outline_only  # both kinds of sample drawn
+
+
 def test_nominal_is_the_softmax_weighted_mean_of_the_samples():
     """With one sample far better than the rest and a tiny temperature, the new nominal is that sample."""
     from scipy import ndimage

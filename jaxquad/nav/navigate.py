@@ -18,7 +18,7 @@ from jaxtyping import Array, Bool, Float, Int, Key
 
 from jaxquad.kernels import mppi
 from jaxquad.kernels.costmap import CostGrid, CostmapParams, costmap_layers
-from jaxquad.kernels.footprint import footprint_disks
+from jaxquad.kernels.footprint import footprint_disks, footprint_outline
 from jaxquad.kernels.planner import cost_to_go, descend, nearest_open_cell, step_weights
 
 
@@ -43,14 +43,16 @@ class NavParams(eqx.Module):
         footprint_padding: float = 0.0,
     ) -> NavParams:
         """`footprint`: (centre, half extents) of the robot's planform rectangle in the base frame (m,
-        `nav.missions.footprint`); the controller then checks the 3 disks covering it and the costmap's
-        inscribed radius becomes their radius. Without it the robot is a disk of 0.2 m. `footprint_padding`
+        `nav.missions.footprint`); the controller then checks the 3 disks covering it, with the costmap's
+        inscribed radius at their radius, and keeps its corners and long sides' middles off lethal and unknown
+        cells. Without it the robot is a disk of 0.2 m. `footprint_padding`
         (m) is added to that radius: room for the error of the pose the robot navigates by."""
         costmap, controller = CostmapParams.default(), mppi.MppiParams.default(n_samples=n_samples, horizon=horizon)
         if footprint is not None:
             disks, radius = footprint_disks(*(jnp.asarray(a, jnp.float32) for a in footprint))
             costmap = eqx.tree_at(lambda c: c.inscribed_radius, costmap, radius)
-            controller = eqx.tree_at(lambda c: c.footprint_disks, controller, disks)
+            outline = footprint_outline(*(jnp.asarray(a, jnp.float32) for a in footprint))
+            controller = eqx.tree_at(lambda c: (c.footprint_disks, c.footprint_outline), controller, (disks, outline))
         costmap = eqx.tree_at(lambda c: c.inscribed_radius, costmap, costmap.inscribed_radius + footprint_padding)
         # 0.5 m goal tolerance of the planner: NavFn's in the authors' configuration.
         return cls(
