@@ -277,7 +277,7 @@ def step(params: MppiParams, state: MppiState, inputs: MppiInputs) -> tuple[Mppi
 
     turn = toward_pose(params, pose, goal, params.k_xy, params.k_yaw)
     turning = at_xy & critics.turn_is_clear(pose, inputs.grid, params.footprint_disks)
-    cmd = jnp.where(arrived, 0.0, jnp.where(turning, turn, mppi_cmd))
+    cmd = jnp.where(turning, turn, mppi_cmd)  # arrived: the hold below
 
     # Progress checker and recovery.
     moved = jnp.linalg.norm(pose[:2] - state.anchor) > params.progress_radius

@@ -49,9 +49,10 @@ class NavParams(eqx.Module):
         (m) is added to that radius: room for the error of the pose the robot navigates by."""
         costmap, controller = CostmapParams.default(), mppi.MppiParams.default(n_samples=n_samples, horizon=horizon)
         if footprint is not None:
-            disks, radius = footprint_disks(*(jnp.asarray(a, jnp.float32) for a in footprint))
+            center, half = (jnp.asarray(a, jnp.float32) for a in footprint)
+            disks, radius = footprint_disks(center, half)
             costmap = eqx.tree_at(lambda c: c.inscribed_radius, costmap, radius)
-            outline = footprint_outline(*(jnp.asarray(a, jnp.float32) for a in footprint))
+            outline = footprint_outline(center, half)
             controller = eqx.tree_at(lambda c: (c.footprint_disks, c.footprint_outline), controller, (disks, outline))
         costmap = eqx.tree_at(lambda c: c.inscribed_radius, costmap, costmap.inscribed_radius + footprint_padding)
         # 0.5 m goal tolerance of the planner: NavFn's in the authors' configuration.
