@@ -10,10 +10,15 @@ the runs that ended `lost` in red, the others grey, with the median over the run
 heading panel adds the median absolute value of the reported yaw's random walk (`sim.sensors`'
 `yaw_walk`: 0.6745 x yaw_walk x sqrt(t)), which the leg odometry's heading follows. It prints, as JSON,
 the medians at each whole minute and per lost run its end time, its largest change of error from one sample to
-the next (`sample_s` apart: a control tick, or `exploration.py --trace-every`'s period) and its final heading
-error; with the loop candidates in the traces (`exploration.py`'s `loop_events`), per lost run the accepted closure
-that changed its SLAM error most, and `loops`: how many candidates were accepted and refused, and the accepted ones
-that moved a run's error by more than `JUMP_M` (their count, runs, and chi-squares); with the final maps in the
+the next (`sample_s` apart: a control tick, or `exploration.py --trace-every`'s period), its final heading
+error and a cause (`lost_causes` counts them): `jump` where the error rose by more than `JUMP_M` from one sample to
+the next, else `heading` where the final heading error is `HEADING_DEG` or more, else `drift`. Per collided run
+(the world's boxes rebuilt from the traces' world and seed) it prints the box nearest the footprint's outline at the
+last sample (a sample can precede the collision by up to `sample_s`: the distance need not be 0), the control mode
+then, whether the run was walking to a view goal and its SLAM error, and `collisions_by_box` counts them; with
+the loop candidates in the traces (`exploration.py`'s `loop_events`), per lost run the accepted closure that changed
+its SLAM error most, and `loops`: how many candidates were accepted and refused, and the accepted ones that moved a
+run's error by more than `JUMP_M` (their count, runs, and chi-squares); with the final maps in the
 traces (`exploration.py --traces` keeps them since `6a3bdcf`), their scores against the true map per outcome
 (`jaxquad.metrics.map_scores`: IoU median and 10-90 %, precision and recall medians) and, over the runs that ended
 `explored`, the correlation of the map IoU with the run's median SLAM position error.
@@ -29,6 +34,9 @@ from pathlib import Path
 import numpy as np
 
 JUMP_M = 0.3  # m: an accepted closure that moves the SLAM position error by more than this
+# deg: a lost run's final heading error from which the heading counts as its cause: walls seen at the 4 m map range
+# then land 0.2 m astray, beyond what scan matching against the run's own map pulls back.
+HEADING_DEG = 3.0
 
 
 def heading_error_deg(d: dict) -> np.ndarray:
@@ -99,17 +107,58 @@ def summarize(d: dict, yaw_walk: float) -> dict:
     for i in lost:
         ticks = np.flatnonzero(active[:, i])
         k = int(ticks[-1]) if ticks.size else 0  # the tick the run ended on is its last active one
+        steps = np.diff(err[: k + 1, i])
+        rise, final_heading = float(np.max(steps, initial=0.0)), float(heading[k, i])
         runs.append({
             "run": int(i),
             "end_s": float(d["end_t"][i]),
-            "largest_tick_change_m": float(np.max(np.abs(np.diff(err[: k + 1, i])), initial=0.0)),
-            "final_heading_error_deg": float(heading[k, i]),
+            "largest_tick_change_m": float(np.max(np.abs(steps), initial=0.0)),
+            "final_heading_error_deg": final_heading,
+            "cause": "jump" if rise > JUMP_M else ("heading" if final_heading >= HEADING_DEG else "drift"),
         })  # fmt: skip
         if "loop_chi2" in d:
             runs[-1]["largest_closure"] = _largest_closure(d, i)
+    causes = {c: sum(r["cause"] == c for r in runs) for c in ("jump", "heading", "drift")}
     loops = {"loops": loop_summary(d)} if "loop_chi2" in d else {}
     return loops | {"runs": int(err.shape[1]), "lost": len(runs), "randomized_noise": randomize, "sample_s": tick,
-            "per_minute": minutes, "lost_runs": runs}  # fmt: skip
+            "per_minute": minutes, "lost_runs": runs, "lost_causes": causes}  # fmt: skip
+
+
+def collision_summary(d: dict, boxes: tuple[np.ndarray, np.ndarray, np.ndarray], footprint) -> dict:
+    """Per collided run, at its last sample: the box (index into `boxes` = centres, half extents, yaws) nearest the
+    outline of the footprint (`footprint` = its centre and half extents in the base frame, m) at the true pose, that
+    distance (m, < 0 inside), the control mode (`loop.MODES`), whether a view goal was being walked to, and the SLAM
+    error; and how many collided runs each box has."""
+    import jax.numpy as jnp
+
+    from jaxquad.explore.loop import MODES
+    from jaxquad.kernels.footprint import footprint_outline
+    from jaxquad.sim.worlds import _signed_distance
+
+    center, half, yaw = boxes
+    outline = np.asarray(footprint_outline(*(jnp.asarray(a, jnp.float32) for a in footprint)), np.float64)  # (6, 2)
+    active = d["active"].astype(bool)
+    runs = []
+    for i in np.flatnonzero(d["outcome"] == 2):  # OUTCOMES' "collided"
+        ticks = np.flatnonzero(active[:, i])
+        k = int(ticks[-1]) if ticks.size else 0
+        x, y, th = (float(v) for v in d["true_pose"][k, i])
+        c, s = np.cos(th), np.sin(th)
+        xy = np.array([x, y]) + outline @ np.array([[c, s], [-s, c]])  # the outline's points in the world
+        dist = np.array([np.min(_signed_distance(center[b : b + 1], half[b : b + 1], yaw[b : b + 1], xy))
+                         for b in range(center.shape[0])])  # fmt: skip
+        b = int(np.argmin(dist))
+        run = {"run": int(i), "end_s": float(d["end_t"][i]), "true_pose": [x, y, th], "box": b,
+               "box_distance_m": float(dist[b]), "slam_error_m": float(d["error"][k, i])}  # fmt: skip
+        if "mode" in d:
+            run["mode"] = MODES[int(d["mode"][k, i])]
+        if "viewing" in d:
+            run["viewing"] = bool(d["viewing"][k, i])
+        runs.append(run)
+    by_box = {}
+    for r in runs:
+        by_box[str(r["box"])] = by_box.get(str(r["box"]), 0) + 1
+    return {"collided_runs": runs, "collisions_by_box": dict(sorted(by_box.items(), key=lambda kv: -kv[1]))}
 
 
 def _closure_change(d: dict) -> np.ndarray:
@@ -231,6 +280,14 @@ def main() -> int:
     yaw_walk = float(SensorNoise.default().yaw_walk)
     d = load(args.traces)
     summary = summarize(d, yaw_walk)
+    if all(k in d for k in ("robot", "world", "seed")):
+        from jaxquad.nav.missions import footprint
+        from jaxquad.robots import load as load_robot
+        from jaxquad.sim.worlds import make_world
+
+        world = make_world(str(d["world"]), int(d["seed"]))
+        fp = footprint(load_robot(str(d["robot"])))
+        summary |= collision_summary(d, (world.center, world.half, world.yaw), fp)
     if "maps" in d:
         summary["maps"] = map_summary(d)
     print(json.dumps(summary, indent=1))

@@ -210,3 +210,48 @@ def test_loop_candidates_kept_at_every_tick_and_the_closures_that_jumped(tmp_pat
     big = run["largest_closure"]  # of run 1's two closures, the one that moved its error by 0.502 m
     assert big["chi2"] == 12.0 and big["t_s"] == pytest.approx(T[700], rel=1e-6)
     assert big["error_after_m"] - big["error_before_m"] == pytest.approx(0.502, abs=1e-5)
+
+
+@pytest.mark.parametrize(
+    "step_m, heading_rad, cause",
+    [(0.2, 0.06, "heading"), (0.35, 0.06, "jump"), (-0.35, 0.06, "heading"), (0.2, 0.04, "drift")],
+)
+def test_a_lost_runs_cause(step_m, heading_rad, cause):
+    """A rise of the error by more than JUMP_M in one sample is a jump (a fall is not: a closure that brought the
+    run back); else a final heading error of HEADING_DEG or more (0.06 rad is 3.4 deg, 0.04 rad 2.3) is the cause;
+    else drift."""
+    d = _traces()
+    d["error"][500, 1] -= 0.2  # the traces' jump and back, replaced by a step that stays
+    d["error"][500:, 1] += step_m
+    d["pose"][800, 1, 2] = -np.pi - 0.01 + heading_rad  # true heading pi - 0.01: off by heading_rad at its end
+    s = errors.summarize(d, yaw_walk=np.deg2rad(0.2))
+    (run,) = s["lost_runs"]
+    assert run["cause"] == cause
+    assert s["lost_causes"] == {c: int(c == cause) for c in ("jump", "heading", "drift")}
+
+
+def test_collided_runs_nearest_box_mode_and_view():
+    """Two axis-aligned boxes; run 2 (collided) ends with the footprint's front-left corner 0.03 m inside box 1,
+    read at its last active sample (later samples hold garbage)."""
+    from jaxquad.explore.loop import MODES
+
+    d = _traces()
+    center = np.array([[0.0, 5.0, 0.5], [3.0, 0.0, 0.5]])
+    half = np.array([[1.0, 1.0, 0.5], [0.5, 0.5, 0.5]])
+    yaw = np.zeros(2)
+    fc, fh = np.array([-0.05, 0.0]), np.array([0.3, 0.15])
+    k = 900
+    d["active"][k + 1 :, 2] = False
+    corner_x = 3.0 - 0.5 + 0.03  # the corner (x = base + fc + fh) 0.03 m past box 1's face at x = 2.5
+    d["true_pose"][k, 2] = [corner_x - fc[0] - fh[0], 0.0, 0.0]
+    d["true_pose"][k + 1 :, 2] = [0.0, 5.0, 0.0]  # inside box 0: must not be read
+    d["mode"] = np.full(d["error"].shape, MODES.index("mppi"), np.int8)
+    d["mode"][k, 2] = MODES.index("recovery")
+    d["viewing"] = np.zeros(d["error"].shape, bool)
+    d["viewing"][k, 2] = True
+    s = errors.collision_summary(d, (center, half, yaw), (fc, fh))
+    (run,) = s["collided_runs"]
+    assert run["run"] == 2 and run["box"] == 1 and run["box_distance_m"] == pytest.approx(-0.03, abs=1e-6)
+    assert run["mode"] == "recovery" and run["viewing"] and run["slam_error_m"] == pytest.approx(0.003 * k, rel=1e-5)
+    assert run["true_pose"] == pytest.approx(d["true_pose"][k, 2].tolist())
+    assert s["collisions_by_box"] == {"1": 1}
