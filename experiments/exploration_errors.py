@@ -131,7 +131,7 @@ def collision_summary(d: dict, boxes: tuple[np.ndarray, np.ndarray, np.ndarray],
     error; and how many collided runs each box has."""
     import jax.numpy as jnp
 
-    from jaxquad.explore.loop import MODES
+    from jaxquad.explore.loop import MODES, OUTCOMES
     from jaxquad.kernels.footprint import footprint_outline
     from jaxquad.sim.worlds import _signed_distance
 
@@ -139,7 +139,7 @@ def collision_summary(d: dict, boxes: tuple[np.ndarray, np.ndarray, np.ndarray],
     outline = np.asarray(footprint_outline(*(jnp.asarray(a, jnp.float32) for a in footprint)), np.float64)  # (6, 2)
     active = d["active"].astype(bool)
     runs = []
-    for i in np.flatnonzero(d["outcome"] == 2):  # OUTCOMES' "collided"
+    for i in np.flatnonzero(d["outcome"] == OUTCOMES.index("collided")):
         ticks = np.flatnonzero(active[:, i])
         k = int(ticks[-1]) if ticks.size else 0
         x, y, th = (float(v) for v in d["true_pose"][k, i])
