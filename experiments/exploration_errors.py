@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -105,8 +106,7 @@ def summarize(d: dict, yaw_walk: float) -> dict:
         })  # fmt: skip
     runs = []
     for i in lost:
-        ticks = np.flatnonzero(active[:, i])
-        k = int(ticks[-1]) if ticks.size else 0  # the tick the run ended on is its last active one
+        k = _last_tick(active, i)
         steps = np.diff(err[: k + 1, i])
         rise, final_heading = float(np.max(steps, initial=0.0)), float(heading[k, i])
         runs.append({
@@ -124,29 +124,32 @@ def summarize(d: dict, yaw_walk: float) -> dict:
             "per_minute": minutes, "lost_runs": runs, "lost_causes": causes}  # fmt: skip
 
 
-def collision_summary(d: dict, boxes: tuple[np.ndarray, np.ndarray, np.ndarray], footprint) -> dict:
-    """Per collided run, at its last sample: the box (index into `boxes` = centres, half extents, yaws) nearest the
-    outline of the footprint (`footprint` = its centre and half extents in the base frame, m) at the true pose, that
-    distance (m, < 0 inside), the control mode (`loop.MODES`), whether a view goal was being walked to, and the SLAM
-    error; and how many collided runs each box has."""
+def _last_tick(active: np.ndarray, run: int) -> int:
+    """The tick a run ended on: its last active one (0 for a run never active)."""
+    ticks = np.flatnonzero(active[:, run])
+    return int(ticks[-1]) if ticks.size else 0
+
+
+def collision_summary(d: dict, world, footprint) -> dict:
+    """Per collided run, at its last sample: the box of `world` (`sim.worlds.World`) nearest the outline of the
+    footprint (`footprint` = its centre and half extents in the base frame, m) at the true pose, that distance (m,
+    < 0 inside), the control mode (`loop.MODES`), whether a view goal was being walked to, and the SLAM error; and
+    how many collided runs each box has."""
     import jax.numpy as jnp
 
     from jaxquad.explore.loop import MODES, OUTCOMES
     from jaxquad.kernels.footprint import footprint_outline
-    from jaxquad.sim.worlds import _signed_distance
+    from jaxquad.sim.worlds import box_distances
 
-    center, half, yaw = boxes
     outline = np.asarray(footprint_outline(*(jnp.asarray(a, jnp.float32) for a in footprint)), np.float64)  # (6, 2)
     active = d["active"].astype(bool)
     runs = []
     for i in np.flatnonzero(d["outcome"] == OUTCOMES.index("collided")):
-        ticks = np.flatnonzero(active[:, i])
-        k = int(ticks[-1]) if ticks.size else 0
+        k = _last_tick(active, i)
         x, y, th = (float(v) for v in d["true_pose"][k, i])
         c, s = np.cos(th), np.sin(th)
         xy = np.array([x, y]) + outline @ np.array([[c, s], [-s, c]])  # the outline's points in the world
-        dist = np.array([np.min(_signed_distance(center[b : b + 1], half[b : b + 1], yaw[b : b + 1], xy))
-                         for b in range(center.shape[0])])  # fmt: skip
+        dist = box_distances(world, xy).min(axis=0)  # (B,): each box's nearest outline point
         b = int(np.argmin(dist))
         run = {"run": int(i), "end_s": float(d["end_t"][i]), "true_pose": [x, y, th], "box": b,
                "box_distance_m": float(dist[b]), "slam_error_m": float(d["error"][k, i])}  # fmt: skip
@@ -155,10 +158,8 @@ def collision_summary(d: dict, boxes: tuple[np.ndarray, np.ndarray, np.ndarray],
         if "viewing" in d:
             run["viewing"] = bool(d["viewing"][k, i])
         runs.append(run)
-    by_box = {}
-    for r in runs:
-        by_box[str(r["box"])] = by_box.get(str(r["box"]), 0) + 1
-    return {"collided_runs": runs, "collisions_by_box": dict(sorted(by_box.items(), key=lambda kv: -kv[1]))}
+    by_box = Counter(str(r["box"]) for r in runs)
+    return {"collided_runs": runs, "collisions_by_box": dict(by_box.most_common())}
 
 
 def _closure_change(d: dict) -> np.ndarray:
@@ -285,9 +286,12 @@ def main() -> int:
         from jaxquad.robots import load as load_robot
         from jaxquad.sim.worlds import make_world
 
-        world = make_world(str(d["world"]), int(d["seed"]))
-        fp = footprint(load_robot(str(d["robot"])))
-        summary |= collision_summary(d, (world.center, world.half, world.yaw), fp)
+        try:
+            world = make_world(str(d["world"]), int(d["seed"]))
+            fp = footprint(load_robot(str(d["robot"])))
+        except (ValueError, OSError) as e:
+            raise SystemExit(f"exploration_errors: {args.traces}: {e}") from None
+        summary |= collision_summary(d, world, fp)
     if "maps" in d:
         summary["maps"] = map_summary(d)
     print(json.dumps(summary, indent=1))

@@ -234,11 +234,12 @@ def test_collided_runs_nearest_box_mode_and_view():
     """Two axis-aligned boxes; run 2 (collided) ends with the footprint's front-left corner 0.03 m inside box 1,
     read at its last active sample (later samples hold garbage)."""
     from jaxquad.explore.loop import MODES
+    from jaxquad.sim.worlds import World
 
     d = _traces()
     center = np.array([[0.0, 5.0, 0.5], [3.0, 0.0, 0.5]])
     half = np.array([[1.0, 1.0, 0.5], [0.5, 0.5, 0.5]])
-    yaw = np.zeros(2)
+    world = World("house", 0, center, half, np.zeros(2), (-2.0, -2.0, 6.0, 8.0), np.zeros((0, 2)))
     fc, fh = np.array([-0.05, 0.0]), np.array([0.3, 0.15])
     k = 900
     d["active"][k + 1 :, 2] = False
@@ -249,7 +250,7 @@ def test_collided_runs_nearest_box_mode_and_view():
     d["mode"][k, 2] = MODES.index("recovery")
     d["viewing"] = np.zeros(d["error"].shape, bool)
     d["viewing"][k, 2] = True
-    s = errors.collision_summary(d, (center, half, yaw), (fc, fh))
+    s = errors.collision_summary(d, world, (fc, fh))
     (run,) = s["collided_runs"]
     assert run["run"] == 2 and run["box"] == 1 and run["box_distance_m"] == pytest.approx(-0.03, abs=1e-6)
     assert run["mode"] == "recovery" and run["viewing"] and run["slam_error_m"] == pytest.approx(0.003 * k, rel=1e-5)

@@ -6,7 +6,7 @@ import pytest
 
 from jaxquad.io import load_map, save_map
 from jaxquad.sim.routes import plan_loop
-from jaxquad.sim.worlds import box_signed_distance, make_world, occupancy_map, world_xml
+from jaxquad.sim.worlds import World, box_distances, box_signed_distance, make_world, occupancy_map, world_xml
 
 
 @pytest.fixture(scope="module", params=["house", "warehouse"])
@@ -77,3 +77,20 @@ def test_route_loop_is_collision_free(world):
         assert np.min(np.linalg.norm(pts - a, axis=1)) < 1.0
     length = np.sum(np.linalg.norm(np.diff(closed, axis=0), axis=1))
     assert length > (8.0 if world.kind == "house" else 30.0)
+
+
+def test_box_distances_per_box_against_closed_forms():
+    """A box turned 90 deg (its half extents swap in the world) and an axis-aligned one: the point's distance to
+    each, outside to a face, outside to a corner, and inside; the nearest equals `box_signed_distance`."""
+    center = np.array([[0.0, 0.0, 0.5], [4.0, 0.0, 0.5]])
+    half = np.array([[1.0, 0.5, 0.5], [0.5, 0.5, 0.5]])
+    world = World("house", 0, center, half, np.array([np.pi / 2, 0.0]), (-2.0, -2.0, 6.0, 2.0), np.zeros((0, 2)))
+    xy = np.array([[0.0, 1.5], [1.0, 2.0], [3.9, 0.2], [2.0, 0.0]])
+    expected = np.array([
+        [0.5, np.hypot(3.5, 1.0)],  # above the turned box's end (world y extent 1); off box 1's corner (3.5, 0.5)
+        [np.hypot(0.5, 1.0), np.hypot(2.5, 1.5)],  # off the turned box's corner (0.5, 1)
+        [3.4, -0.3],  # inside box 1, 0.3 m from its top face
+        [1.5, 1.5],  # between both: 1.5 m from each face
+    ])  # fmt: skip
+    np.testing.assert_allclose(box_distances(world, xy), expected, atol=1e-12)
+    np.testing.assert_allclose(box_signed_distance(world, xy), expected.min(axis=1), atol=1e-12)
