@@ -46,6 +46,7 @@ def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
 
     keep = ("runs", "seconds", "seed", "samples", "horizon", "every", "band_height", "band_reduce")
     keep += ("map_miss_probability", "map_hit_offset_cells", "revisit_after", "footprint_padding", "wall_heading")
+    keep += ("map_clear_range",)
     slam = load_params(args.slam_params) if args.slam_params else None  # the values: an edited file is another cell
     settings = {"robot": robot, "world": world, "variant": variant, "traces": args.traces, "slam_params": slam}
     settings |= {k: getattr(args, k) for k in keep}
@@ -80,7 +81,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         saved = json.loads(done.read_text())
         # rows kept before --slam-params and the options below it had none: the values they ran with
         old = {"slam_params": None, "revisit_after": 0.0, "footprint_padding": 0.1, "low_obstacles": False}
-        old |= {"wall_heading": "off", "map_hit_offset_cells": 0.0, "view_goals": False}
+        old |= {"wall_heading": "off", "map_hit_offset_cells": 0.0, "view_goals": False, "map_clear_range": 0.0}
         if old | saved.get("settings", {}) != settings:
             raise CheckpointError(f"{done}: a finished cell of other settings; remove it or choose another folder")
         print(f"{name}: finished earlier ({done})", file=sys.stderr, flush=True)
@@ -104,6 +105,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         wall_heading=args.wall_heading == "on",
         revisit_after=args.revisit_after,
         footprint_padding=args.footprint_padding,
+        map_clear_range=args.map_clear_range,
         low_obstacles=args.low_obstacles == "on",
         view_goals=args.view_goals == "on",
         trace_robots=args.runs if args.traces else 4,

@@ -45,7 +45,7 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list, edge_rows: 
     from jaxquad.estimate.laser import every_nth_frame, laser_inputs
     from jaxquad.sim.fleet import FleetConfig
     from jaxquad.sim.rollout import rollout
-    from jaxquad.slam import final_poses, load_params, map_grid, redraw_maps, run_fleet, slam_config
+    from jaxquad.slam import final_poses, load_params, map_grid, map_max_range, redraw_maps, run_fleet, slam_config
     from jaxquad.slam.report import robot_report, robot_slice, truth_in_view
 
     config = FleetConfig(
@@ -66,7 +66,7 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list, edge_rows: 
         args.contacts,
         args.band_height,
         0.2,
-        values["max_laser_range"],
+        map_max_range(values),
         None,
         values["leg_yaw_rate_std"],
         band_reduce=args.band_reduce,
@@ -74,10 +74,10 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list, edge_rows: 
     every = max(1, round(config.camera_hz / args.scan_hz))
     x = every_nth_frame(x, every)
     t = np.asarray(x["t"], np.float64)
-    grid = map_grid(x, values["resolution"], values["max_laser_range"])
+    grid = map_grid(x, values["resolution"], map_max_range(values))
     world_index = np.asarray(log["world_index"])
     robot_maps = [maps[world_index[i] % len(maps)] for i in range(args.robots)]
-    in_view = [truth_in_view(x, i, robot_maps[i], grid.max_range) for i in range(args.robots)]
+    in_view = [truth_in_view(x, i, robot_maps[i], values["max_laser_range"]) for i in range(args.robots)]
     for lo in args.lo_constraints:
         spec, params = slam_config(values, grid, lo, x["T_base_laser"])
         t0 = time.perf_counter()

@@ -11,6 +11,8 @@ tie rule), in a fixed number of steps so that it jits and vmaps. Cells before th
 the end cell is occupied when the ray has a return. Rays, by reading r:
   range_min <= r < range_max (finite): free up to the hit, hit cell occupied (the hit at r + hit_offset);
   r >= range_max or r = +inf (no return): free up to range_max, its end cell included, no hit;
+  range_max <= r < clear_range (a far return, when clear_range > range_max): free up to
+    max(range_max, r - clear_margin r^2), its end cell included, no hit;
   NaN, -inf or r < range_min (0 included: a depth camera's invalid pixel): ignored.
 Per scan each ray brings its evidence to its cells (l_occ to its end cell when it has a return, l_free
 to every other cell it touches), and a cell changes by the sum over the scan's rays, clipped to
@@ -62,6 +64,10 @@ class OccupancyParams(eqx.Module):
     # its centre is in front of the face; half a cell puts a square-on return into the cell whose centre is behind
     # the face, and leaves the one in front to the ray's free evidence.
     hit_offset: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(0.0))
+    # m: readings from range_max up to this clear the ray short of the reading (module docstring); at most range_max
+    # (the default 0 included): none do. The grid's max_range must reach it.
+    clear_range: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(0.0))
+    clear_margin: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(0.0))  # 1/m: margin per r^2
 
 
 class OccupancyGrid(eqx.Module):
@@ -114,7 +120,10 @@ def scan_evidence(
     range_max = jnp.minimum(params.range_max, spec.max_range)
     no_return = (ranges >= range_max) & ~jnp.isnan(ranges)  # +inf included
     valid = no_return | (jnp.isfinite(ranges) & (ranges >= params.range_min))
-    r = jnp.where(no_return | ~valid, range_max, jnp.minimum(ranges + params.hit_offset, spec.max_range))
+    far = no_return & (ranges < params.clear_range)  # finite: clear_range is
+    cleared = jnp.maximum(range_max, ranges - params.clear_margin * ranges**2)
+    r = jnp.where(far, cleared, jnp.where(no_return | ~valid, range_max, ranges + params.hit_offset))
+    r = jnp.minimum(r, spec.max_range)
     angle = pose[2] + bearings
     row0, col0 = _cell(spec, pose[0], pose[1])
     row1, col1 = _cell(spec, pose[0] + r * jnp.cos(angle), pose[1] + r * jnp.sin(angle))

@@ -37,9 +37,12 @@ def _bresenham(c0, r0, c1, r1):
     return cells
 
 
-def _evidence_np(spec, pose, ranges, bearings, range_min, range_max, l_occ, l_free, hit_offset=0.0):
+def _evidence_np(
+    spec, pose, ranges, bearings, range_min, range_max, l_occ, l_free, hit_offset=0.0, clear_range=0.0, clear_margin=0.0
+):
     """Per cell: the sum of the rays' evidence (l_occ at a return's end cell, `hit_offset` beyond the reading,
-    l_free elsewhere on the ray) clipped to [l_free, l_occ], and whether a ray touched it."""
+    l_free elsewhere on the ray; a far return in [range_max, clear_range) clears its ray to
+    max(range_max, r - clear_margin r^2)) clipped to [l_free, l_occ], and whether a ray touched it."""
     total = np.zeros((spec.rows, spec.cols))
     touched = np.zeros((spec.rows, spec.cols), bool)
     cell = lambda x, y: (
@@ -52,6 +55,8 @@ def _evidence_np(spec, pose, ranges, bearings, range_min, range_max, l_occ, l_fr
             continue
         hit = r < range_max
         d = min(np.float32(r) + np.float32(hit_offset), spec.max_range) if hit else range_max
+        if range_max <= r < clear_range:
+            d = min(max(range_max, np.float32(r) - np.float32(clear_margin) * np.float32(r) ** 2), spec.max_range)
         a = np.float32(pose[2]) + np.float32(b)
         r1, c1 = cell(np.float32(pose[0]) + np.float32(d) * np.cos(a), np.float32(pose[1]) + np.float32(d) * np.sin(a))
         line = _bresenham(c0, r0, c1, r1)
@@ -119,6 +124,36 @@ def test_hit_offset_moves_the_end_cell_along_the_ray():
         for params, end_col in ((half, centre_behind), (plain, 40)):  # without the offset: the face's own cell
             delta = np.asarray(_evidence(SPEC, params, pose, jnp.asarray([face + 3.95]), bearing)[0])[row]
             assert delta[end_col] > 0 and np.all(delta[1:end_col] < 0) and np.all(delta[end_col + 1 :] == 0), face
+
+
+def test_far_returns_clear_their_rays_short_of_the_reading():
+    """Readings from range_max up to clear_range: free up to max(range_max, r - clear_margin r^2), no hit; against
+    the NumPy lines for random scans, and in closed form along one row."""
+    rng = np.random.default_rng(2)
+    params = OccupancyParams(
+        range_min=jnp.asarray(0.2),
+        range_max=jnp.asarray(3.0),
+        clear_range=jnp.asarray(4.5),
+        clear_margin=jnp.asarray(0.03),
+    )
+    l_occ, l_free = float(params.l_occ), float(params.l_free)
+    for trial in range(3):
+        pose = np.array([rng.uniform(-3, 3), rng.uniform(-2, 2), rng.uniform(-np.pi, np.pi)], np.float32)
+        bearings = np.linspace(-np.pi, np.pi, 181, endpoint=False).astype(np.float32)
+        ranges = rng.uniform(0.0, 6.0, 181).astype(np.float32)
+        ranges[::17] = np.inf
+        delta, touched = _evidence(SPEC, params, jnp.asarray(pose), jnp.asarray(ranges), jnp.asarray(bearings))
+        ref = _evidence_np(SPEC, pose, ranges, bearings, 0.2, 3.0, l_occ, l_free, 0.0, 4.5, 0.03)
+        assert np.array_equal(np.asarray(touched), ref[1]), f"trial {trial}"
+        np.testing.assert_allclose(np.asarray(delta), ref[0], atol=1e-5)
+    # From column 0's centre along +x (column c spans x in [-4 + 0.1 c, -3.9 + 0.1 c)): a reading of 4 m clears to
+    # 4 - 0.48 = 3.52 m, x = -0.43 (column 35); 3.2 m clears to range_max, 3 m (x = -0.95, column 30); 5 m, beyond
+    # clear_range, is a no-return (column 30); 2 m is a hit (x = 1.95, column 20).
+    pose, bearing, row = jnp.asarray([-3.95, 0.05, 0.0]), jnp.asarray([0.0]), 30
+    for reading, end_col, hit in ((4.0, 35, False), (3.2, 30, False), (5.0, 30, False), (2.0, 20, True)):
+        delta = np.asarray(_evidence(SPEC, params, pose, jnp.asarray([reading]), bearing)[0])[row]
+        assert np.all(delta[: end_col + (0 if hit else 1)] < 0) and np.all(delta[end_col + 1 :] == 0), reading
+        assert (delta[end_col] > 0) == hit, reading
 
 
 def test_log_odds_update_and_clamping():

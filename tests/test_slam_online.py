@@ -345,9 +345,17 @@ def test_params_file_checks(tmp_path):
     assert laser["occupancy_hit_offset_cells"] == 0.0  # slam_toolbox's for 2D lidars
     # Exploration's own offset replaces the file's, whatever the file holds.
     from jaxquad.explore import ExploreConfig
+    from jaxquad.explore.fleet import SCAN_RANGE
+    from jaxquad.slam import map_max_range
 
     assert ExploreConfig().slam_values()["occupancy_hit_offset_cells"] == 1.0  # exploration's default: a whole cell
     assert ExploreConfig(map_hit_offset_cells=0.0).slam_values()["occupancy_hit_offset_cells"] == 0.0
+    # Far readings clear the map only where asked; the map's grids then reach the clear range, the scans' at most.
+    occ = slam_config(values | {"occupancy_clear_range": 6.0, "occupancy_clear_margin": 0.02}, GRID, "off")[1]
+    assert float(occ.occupancy.clear_range) == 6.0 and float(occ.occupancy.clear_margin) == pytest.approx(0.02)
+    assert values["occupancy_clear_range"] == 0.0 and map_max_range(values) == values["max_laser_range"]
+    explore_values = ExploreConfig(map_range=4.0, map_clear_range=20.0).slam_values()
+    assert explore_values["max_laser_range"] == 4.0 and map_max_range(explore_values) == SCAN_RANGE
     assert ExploreConfig(map_hit_offset_cells=1.0).slam_values()["occupancy_hit_offset_cells"] == 1.0
     with pytest.raises(ValueError, match="map_hit_offset_cells"):
         ExploreConfig(map_hit_offset_cells=1.5)

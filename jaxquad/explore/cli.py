@@ -73,6 +73,13 @@ def add_loop_arguments(parser: argparse.ArgumentParser) -> None:
         f"(default {'on' if c.view_goals else 'off'}; the baseline variant: never)",
     )
     parser.add_argument(
+        "--map-clear-range",
+        type=float,
+        default=c.map_clear_range,
+        help="readings from the map's range up to this mark no wall but clear the map along their ray, short of "
+        f"the reading by three std of the depth noise, m; 0: off (default {c.map_clear_range:g})",
+    )
+    parser.add_argument(
         "--footprint-padding",
         type=float,
         default=c.footprint_padding,
@@ -89,7 +96,11 @@ def check_loop_arguments(args: argparse.Namespace) -> None:
         raise ValueError(f"--map-miss-probability must lie in (0, 0.5), got {args.map_miss_probability}")
     if not 0.0 <= args.map_hit_offset_cells <= 1.0:
         raise ValueError(f"--map-hit-offset-cells must lie in [0, 1], got {args.map_hit_offset_cells}")
-    for option, value in (("--revisit-after", args.revisit_after), ("--footprint-padding", args.footprint_padding)):
+    for option, value in (
+        ("--revisit-after", args.revisit_after),
+        ("--footprint-padding", args.footprint_padding),
+        ("--map-clear-range", args.map_clear_range),
+    ):
         if not (math.isfinite(value) and value >= 0):
             raise ValueError(f"{option} must be a finite number >= 0, got {value}")
 
@@ -210,6 +221,7 @@ def run(args: argparse.Namespace) -> int:
         low_obstacles=args.low_obstacles == "on",
         view_goals=args.view_goals == "on",
         footprint_padding=args.footprint_padding,
+        map_clear_range=args.map_clear_range,
         band_height=args.band_height,
         band_reduce=args.band_reduce,
         trace_robots=max(args.plot_robots, 1),

@@ -57,6 +57,9 @@ class ExploreConfig:
     slam_params: str | None = None  # SLAM parameter file (None: jaxquad/slam/slam.yaml)
     clearance: float = 0.75  # m from every box for the starts (a robot turning in place sweeps ~0.4 m)
     map_range: float = 4.0  # m: longer readings are no-returns for the map (depth noise, 1 % of z^2, is 16 cm at 4 m)
+    # m: readings from map_range up to this mark no wall but clear the map along their ray, stopping three noise std
+    # short of the reading (`kernels.occupancy`; the SLAM file's occupancy_clear_margin); 0: not beyond map_range.
+    map_clear_range: float = 0.0
     # The map's miss probability (a cell a ray crosses), in place of the SLAM file's: at 0.3 a cell is free after two
     # crossing scans (0.35 needs three), and cells seen from few nodes near the walls become free. 100 Go2 runs in the
     # house: coverage 0.896 -> 0.919, runs with 95 % of the clear cells 29 -> 57 (README, exploration).
@@ -106,7 +109,7 @@ class ExploreConfig:
         for name in ("seconds", "spin_rate", "finish_time", "map_range"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
-        for name in ("revisit_after", "footprint_padding"):  # revisit_after 0: never
+        for name in ("revisit_after", "footprint_padding", "map_clear_range"):  # 0: never, none, off
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {getattr(self, name)}")
         if not 0.0 < self.map_miss_probability < 0.5:
@@ -131,8 +134,8 @@ class ExploreConfig:
 
     def slam_values(self) -> dict:
         """The SLAM parameters, with node slots for a node every `minimum_time_interval` of the run, the map's
-        range at most `map_range`, its miss probability `map_miss_probability`, its hit offset
-        `map_hit_offset_cells`, and wall-heading priors for the full variant when `wall_heading`."""
+        range at most `map_range` (clearing to `map_clear_range`), its miss probability `map_miss_probability`,
+        its hit offset `map_hit_offset_cells`, and wall-heading priors for the full variant when `wall_heading`."""
         values = slam.load_params(self.slam_params)
         if not values["occupancy_clamp_min_probability"] < self.map_miss_probability:
             source = self.slam_params or slam.params.DEFAULTS_FILE
@@ -146,6 +149,7 @@ class ExploreConfig:
             "node_capacity": nodes,
             "occupancy_hit_offset_cells": self.map_hit_offset_cells,
             "max_laser_range": min(values["max_laser_range"], self.map_range),
+            "occupancy_clear_range": min(self.map_clear_range, SCAN_RANGE),
             "occupancy_miss_probability": self.map_miss_probability,
             "wall_heading": int(self.wall_heading and self.variant == "full"),
         }
@@ -211,7 +215,7 @@ def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_d
     )
     values = cfg.slam_values()
     T_bc = np.asarray(fleet.T_base_camera)
-    grid = slam.grid_spec_like(truth, values["max_laser_range"])
+    grid = slam.grid_spec_like(truth, slam.map_max_range(values))
     spec, slam_params = slam.slam_config(values, grid, loop.lo_constraints, (float(T_bc[0, 3]), float(T_bc[1, 3]), 0.0))
     spec = dataclasses.replace(spec, refresh_map=False)  # the loop redraws its map once per planning period
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731

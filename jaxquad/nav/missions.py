@@ -47,7 +47,7 @@ def slam_map(cfg, world: World) -> OccupancyMap:
     from jaxquad.estimate.laser import laser_inputs
     from jaxquad.sim import FleetConfig, rollout
     from jaxquad.sim.routes import plan_loop
-    from jaxquad.slam import load_params, map_grid, run_fleet, slam_config, to_occupancy_map
+    from jaxquad.slam import load_params, map_grid, map_max_range, run_fleet, slam_config, to_occupancy_map
     from jaxquad.slam.report import robot_slice
 
     loop = cfg.loop_config()
@@ -65,11 +65,11 @@ def slam_map(cfg, world: World) -> OccupancyMap:
         cfg.contacts,
         loop.band_height,
         0.2,
-        values["max_laser_range"],
+        map_max_range(values),
         None,
         values["leg_yaw_rate_std"],
     )
-    grid = map_grid(x, values["resolution"], values["max_laser_range"])
+    grid = map_grid(x, values["resolution"], map_max_range(values))
     spec, params = slam_config(values, grid, "preintegrated" if loop.odometry == "leg" else "off", x["T_base_laser"])
     state, _, _ = run_fleet(spec, params, x)
     built = to_occupancy_map(spec.grid, robot_slice(state, 0).grid)  # robot 0: the walk that built the map

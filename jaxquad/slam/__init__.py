@@ -14,7 +14,7 @@ from jaxquad.kernels.posegraph import PoseGraph, SolveInfo, SolverParams, chi2, 
 from jaxquad.slam.graph import build_graph, stack_graphs
 from jaxquad.slam.mapping import fleet_maps, grid_spec, grid_spec_like, to_occupancy_map
 from jaxquad.slam.online import finish, refresh_map, scan_map, scan_poses, step
-from jaxquad.slam.params import load_params, slam_config
+from jaxquad.slam.params import load_params, map_max_range, slam_config
 from jaxquad.slam.run import final_poses, laser_log_inputs, map_grid, redraw_maps, run_fleet
 from jaxquad.slam.solve import g2o_pose_graph, optimize_g2o
 from jaxquad.slam.state import LO_CONSTRAINTS, SlamInputs, SlamOutput, SlamParams, SlamSpec, SlamState, init
@@ -32,6 +32,7 @@ __all__ = [
     "init",
     "laser_log_inputs",
     "load_params",
+    "map_max_range",
     "map_grid",
     "redraw_maps",
     "refresh_map",

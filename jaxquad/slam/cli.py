@@ -180,6 +180,7 @@ def _load(args, path: Path, fmt: str, values: dict, progress=None):
         return laser_log_inputs(log), ["robot"], None, "off"
     from jaxquad.estimate.laser import laser_inputs
     from jaxquad.io import load_log
+    from jaxquad.slam.params import map_max_range
 
     log = load_log(path)
     maps = _true_maps(args, path)
@@ -189,7 +190,7 @@ def _load(args, path: Path, fmt: str, values: dict, progress=None):
         args.contacts,
         args.band_height,
         0.2,
-        values["max_laser_range"],
+        map_max_range(values),
         args.observer_params,
         values["leg_yaw_rate_std"],
         progress,
@@ -214,7 +215,7 @@ def run(args: argparse.Namespace) -> int:
     from jaxquad.io import atomic_dir, check_output_dir, to_json, write_json
     from jaxquad.io.carmen import in_time_order
     from jaxquad.slam import report
-    from jaxquad.slam.params import DEFAULTS_FILE, LASER_FILE, load_params, slam_config
+    from jaxquad.slam.params import DEFAULTS_FILE, LASER_FILE, load_params, map_max_range, slam_config
     from jaxquad.slam.run import final_poses, map_grid, nodes_needed, redraw_maps, run_fleet
 
     path = Path(args.input)
@@ -230,7 +231,7 @@ def run(args: argparse.Namespace) -> int:
     # The bar appears once the inputs are checked: the estimator's start, or the first SLAM chunk.
     with progress_bar("slam", "scan") as progress:
         x, names, true_maps, lo_constraints = _load(args, path, fmt, values, progress)
-        grid = map_grid(x, values["resolution"], values["max_laser_range"])
+        grid = map_grid(x, values["resolution"], map_max_range(values))
         spec, params = slam_config(values, grid, lo_constraints, x["T_base_laser"])
         # Enough node slots for every node the scans add (a long log needs more than the default).
         needed = nodes_needed(params, x)
@@ -270,7 +271,10 @@ def run(args: argparse.Namespace) -> int:
             folder.mkdir(exist_ok=True)
             s_i, o_i = (report.robot_slice(a, i) for a in (state, out))
             report.write_robot(folder, grid, stamp, s_i, o_i, final[i])
-            rep = report.robot_report(spec, t, s_i, o_i, final[i], x, i, None if true_maps is None else true_maps[i])
+            true_map = None if true_maps is None else true_maps[i]
+            # in view: the walls within the range that marks hits (readings beyond it only clear)
+            in_view = None if true_map is None else report.truth_in_view(x, i, true_map, values["max_laser_range"])
+            rep = report.robot_report(spec, t, s_i, o_i, final[i], x, i, true_map, in_view)
             summary["robots"].append({"name": name, **rep})
             if true_maps is not None:
                 gt = x["gt"][i] if "gt" in x else None

@@ -56,6 +56,8 @@ _MAY_BE_ZERO = (
     "wall_heading_variance_scale",
     "wall_heading_halves_tolerance",
     "occupancy_hit_offset_cells",
+    "occupancy_clear_range",
+    "occupancy_clear_margin",
 )
 
 
@@ -122,6 +124,12 @@ def load_params(path: str | os.PathLike | None = None, laser: bool = False) -> d
     return values
 
 
+def map_max_range(values: dict) -> float:
+    """m: the longest reading the map reads: `max_laser_range`, or `occupancy_clear_range` beyond it (the map
+    grids' traversal length)."""
+    return max(values["max_laser_range"], values["occupancy_clear_range"])
+
+
 def _logit(p: float) -> float:
     return math.log(p / (1.0 - p))
 
@@ -179,6 +187,8 @@ def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=
             l_occ=f(_logit(v["occupancy_hit_probability"])),
             range_max=f(v["max_laser_range"]),
             hit_offset=f(v["occupancy_hit_offset_cells"] * grid.resolution),
+            clear_range=f(v["occupancy_clear_range"]),
+            clear_margin=f(v["occupancy_clear_margin"]),
             l_min=f(_logit(v["occupancy_clamp_min_probability"])),
             l_max=f(_logit(v["occupancy_clamp_max_probability"])),
         ),
