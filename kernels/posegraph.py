@@ -24,7 +24,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from jaxquad.kernels import chain_precond
-from jaxquad.kernels.lie import SE2, wrap_angle
+from jaxquad.kernels.lie import SE2, se2, wrap_angle, xy_theta
 
 ROBUST_NONE, ROBUST_HUBER, ROBUST_CAUCHY = 0, 1, 2
 ROBUST_KINDS = {"none": ROBUST_NONE, "huber": ROBUST_HUBER, "cauchy": ROBUST_CAUCHY}
@@ -140,10 +140,11 @@ def _linearize(graph: PoseGraph, width) -> _Normal:
     return _Normal(H_ij, H_diag, g, U)
 
 
-def _pcg(graph: PoseGraph, normal: _Normal, active, lam, tol, max_iterations: int, preconditioner: str):
-    """Solve (H + lam I) dx = -g over the active nodes by preconditioned CG; H v is formed edge by edge
-    with segment sums (never densely). Preconditioners: "chain" (block tridiagonal: diagonal blocks and
-    odometry blocks, factored exactly, `chain_precond`) or "block_jacobi" (inverse 3x3 diagonal blocks)."""
+def _pcg(graph: PoseGraph, normal: _Normal, active, lam, tol, max_iterations: int, preconditioner: str, b=None):
+    """Solve (H + lam I) x = b (default b = -g: the LM step) over the active nodes by preconditioned CG; H v is
+    formed edge by edge with segment sums (never densely); b = 0 runs no iteration. Preconditioners: "chain"
+    (block tridiagonal: diagonal blocks and odometry blocks, factored exactly, `chain_precond`) or "block_jacobi"
+    (inverse 3x3 diagonal blocks)."""
     n = graph.poses.shape[0]
     eye = jnp.eye(3, dtype=graph.poses.dtype)
     mask = active[:, None]
@@ -163,7 +164,7 @@ def _pcg(graph: PoseGraph, normal: _Normal, active, lam, tol, max_iterations: in
         off = off + jax.ops.segment_sum(H_ji @ v[graph.edge_i][..., None], graph.edge_j, num_segments=n)
         return jnp.where(mask, (D @ v[..., None] + off)[..., 0], 0.0)
 
-    b = jnp.where(mask, -normal.g, 0.0)
+    b = jnp.where(mask, -normal.g if b is None else b, 0.0)
     x = jnp.zeros_like(b)
     r = b
     z = precondition(r)
@@ -187,6 +188,33 @@ def _pcg(graph: PoseGraph, normal: _Normal, active, lam, tol, max_iterations: in
 
     x, *_, k = jax.lax.while_loop(cond, body, (x, r, z, p, rz, jnp.asarray(0)))
     return x, k
+
+
+def relative_covariance(
+    graph: PoseGraph, i: Int[Array, ""], j: Int[Array, ""], params: SolverParams, when: Bool[Array, ""] = True
+) -> Float[Array, "3 3"]:
+    """Covariance of node j's pose in node i's frame, in the edge error's coordinates (translation and angle of
+    X_i^-1 X_j against its current value), from the whole graph's information at the current poses: J H^-1 J^T
+    with H = J_e^T W J_e over the free nodes (robust edges weighed at their current errors, fixed nodes held) and
+    J the relative pose's Jacobian in nodes i and j; three CG solves (`params`' tolerance, iteration cap and
+    preconditioner). Every edge tying i to j counts, loop closures included, unlike a chain compounded link by
+    link. `when` false: zeros, and no CG iteration runs (also under vmap)."""
+    width = jnp.asarray(params.robust_width, graph.poses.dtype)
+    active = graph.node_mask & ~graph.fixed
+    normal = _linearize(graph, width)
+    x_i, x_j = graph.poses[i], graph.poses[j]
+    _, A, B = _error_and_jacobians(x_i, x_j, xy_theta(se2(x_i).inverse() @ se2(x_j)))
+    dtype = graph.poses.dtype
+    A, B = A * active[i].astype(dtype), B * active[j].astype(dtype)  # a fixed node does not move
+    J = jnp.zeros((3,) + graph.poses.shape, graph.poses.dtype).at[:, i].add(A).at[:, j].add(B)  # (3, n, 3)
+    J = J * jnp.asarray(when).astype(dtype)
+    lam = jnp.zeros((), graph.poses.dtype)
+    solve = lambda rhs: _pcg(  # noqa: E731
+        graph, normal, active, lam, params.cg_tol, params.cg_max_iterations, params.preconditioner, rhs
+    )[0]
+    X = jax.vmap(solve)(J)  # (3, n, 3): H^-1 J^T, one column per row of J
+    cov = jnp.einsum("anc,bnc->ab", J, X)
+    return 0.5 * (cov + cov.T)
 
 
 class _LMState(eqx.Module):

@@ -150,9 +150,13 @@ def _corrupted_inputs():
     return k, x
 
 
-def _corrupted_run(loop_max_chi2: float):
+def _corrupted_run(loop_max_chi2: float, graph_covariance: bool = False):
     k, x = _corrupted_inputs()
-    params = eqx.tree_at(lambda p: p.loop_max_chi2, SlamParams(), jnp.asarray(loop_max_chi2, jnp.float32))
+    params = eqx.tree_at(
+        lambda p: (p.loop_max_chi2, p.loop_graph_covariance),
+        SlamParams(),
+        (jnp.asarray(loop_max_chi2, jnp.float32), jnp.asarray(graph_covariance)),
+    )
     state, out, online_state = run_fleet(_spec("preintegrated"), params, x)
     return k, x, state, out, online_state
 
@@ -169,3 +173,14 @@ def test_wrong_loop_closure_rejected_by_consistency():
     assert not out.loop_closed[0, k] and chi2 > float(SlamParams().loop_max_chi2), (chi2, ate, ate_off)
     assert ate < 0.1 < ate_off, (ate, ate_off)
     assert int(state.loops[0]) >= 1  # the honest closures of the next nodes are still taken
+
+
+def test_the_whole_graphs_covariance_also_rejects_the_wrong_closure():
+    """`loop_graph_covariance`: the test's covariance from the whole graph (`kernels.posegraph.relative_covariance`)
+    rejects the same wrong closure, takes the honest ones, and is the chi-square the step reports."""
+    k, x, state, out, _ = _corrupted_run(float(SlamParams().loop_max_chi2), graph_covariance=True)
+    assert out.added[0, k] and not out.loop_closed[0, k] and float(out.loop_chi2[0, k]) > 16.27
+    assert int(state.loops[0]) >= 1 and _ate(final_poses(state, out)[0], LOOP) < 0.1
+    _, _, chain_state, chain_out, _ = _corrupted_run(float(SlamParams().loop_max_chi2))
+    tested = np.isfinite(out.loop_chi2[0]) & np.isfinite(chain_out.loop_chi2[0])
+    assert tested.sum() >= 2 and not np.allclose(out.loop_chi2[0, tested], chain_out.loop_chi2[0, tested])

@@ -31,6 +31,10 @@ def _g2o_error_np(xi, xj, z):
     return np.array([E[0, 2], E[1, 2], np.arctan2(E[1, 0], E[0, 0])])
 
 
+def _pose_of(T):
+    return np.array([T[0, 2], T[1, 2], np.arctan2(T[1, 0], T[0, 0])])
+
+
 def _gtsam_solve(poses, ei, ej, meas, info, fixed, robust=None):
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     for k, x in enumerate(poses):
@@ -223,3 +227,89 @@ def test_preconditioners_reach_the_same_optimum():
         ]
         assert _pose_diff(outs[0][0].poses, outs[1][0].poses) < 1e-7
         assert int(outs[0][1].cg_iterations) < int(outs[1][1].cg_iterations)
+
+
+def _dense_relative_covariance(poses, ei, ej, info, fixed, i, j, h=1e-6):
+    """J H^-1 J^T by NumPy: central finite differences of the g2o errors (measurements equal to the poses' own
+    relative poses, so every error is zero) in additive perturbations of the free nodes, and a dense inverse."""
+    free = np.flatnonzero(~fixed)
+    col = {k: n for n, k in enumerate(free)}
+    meas = [np.asarray(_pose_of(np.linalg.inv(_mat(poses[a])) @ _mat(poses[b]))) for a, b in zip(ei, ej)]
+
+    def jac(f, x):
+        out = []
+        for d in range(3):
+            step = np.zeros(3)
+            step[d] = h
+            out.append((f(x + step) - f(x - step)) / (2 * h))
+        return np.stack(out, 1)
+
+    H = np.zeros((3 * len(free), 3 * len(free)))
+    for a, b, z, omega in zip(ei, ej, meas, info):
+        blocks = {}
+        if a in col:
+            blocks[a] = jac(lambda x, b=b, z=z: _g2o_error_np(x, poses[b], z), poses[a])
+        if b in col:
+            blocks[b] = jac(lambda x, a=a, z=z: _g2o_error_np(poses[a], x, z), poses[b])
+        for p, Jp in blocks.items():
+            for q, Jq in blocks.items():
+                H[3 * col[p] : 3 * col[p] + 3, 3 * col[q] : 3 * col[q] + 3] += Jp.T @ omega @ Jq
+    z_ij = _pose_of(np.linalg.inv(_mat(poses[i])) @ _mat(poses[j]))
+    J = np.zeros((3, 3 * len(free)))
+    if i in col:
+        J[:, 3 * col[i] : 3 * col[i] + 3] = jac(lambda x: _g2o_error_np(x, poses[j], z_ij), poses[i])
+    if j in col:
+        J[:, 3 * col[j] : 3 * col[j] + 3] = jac(lambda x: _g2o_error_np(poses[i], x, z_ij), poses[j])
+    return J @ np.linalg.solve(H, J.T)
+
+
+def test_relative_covariance_equals_a_dense_inverse_and_the_chain_without_loops():
+    """The whole graph's covariance of node j in node i's frame against NumPy's dense J H^-1 J^T; on a chain alone it
+    is the links' covariances compounded (`slam.consistency.chain_covariance`'s closed form); a loop edge between the
+    two nodes narrows it; `when` false gives zeros."""
+    from jaxquad.kernels.posegraph import relative_covariance
+
+    rng = np.random.default_rng(3)
+    n = 30
+    T = [np.eye(3)]
+    for _ in range(n - 1):
+        T.append(T[-1] @ _mat([rng.uniform(0.2, 0.5), rng.uniform(-0.1, 0.1), rng.uniform(-0.4, 0.4)]))
+    poses = np.array([_pose_of(t) for t in T])
+    chain_i, chain_j = np.arange(n - 1), np.arange(1, n)
+    loops_i, loops_j = np.array([2, 5, 12]), np.array([20, 27, 25])
+
+    def spd(k):
+        A = rng.normal(size=(k, 3, 3)) * 0.3
+        return A @ np.swapaxes(A, 1, 2) + np.diag([4.0, 4.0, 20.0])
+
+    chain_info, loop_info = spd(n - 1), spd(3)
+    fixed = np.arange(n) == 0
+    params = SolverParams(cg_tol=jnp.asarray(1e-12))
+    cov = jax.jit(relative_covariance)
+    with jax.enable_x64(True):
+        for ei, ej, info in (
+            (chain_i, chain_j, chain_info),
+            (np.r_[chain_i, loops_i], np.r_[chain_j, loops_j], np.r_[chain_info, loop_info]),
+        ):
+            meas = np.array([_pose_of(np.linalg.inv(T[a]) @ T[b]) for a, b in zip(ei, ej)])
+            g = build_graph(poses, ei, ej, meas, info, fixed=fixed, edge_capacity=len(ei) + 4)
+            for i, j in ((0, 9), (3, 24), (21, 6)):
+                ours = np.asarray(cov(g, jnp.asarray(i), jnp.asarray(j), params))
+                ref = _dense_relative_covariance(poses, ei, ej, info, fixed, i, j)
+                np.testing.assert_allclose(ours, ref, rtol=1e-5, atol=1e-9)
+            assert not np.any(np.asarray(cov(g, jnp.asarray(3), jnp.asarray(24), params, jnp.asarray(False))))
+        # Chain alone: the links' covariances moved into node j's frame and summed (node i's own link left out).
+        with_loops = np.asarray(cov(g, jnp.asarray(3), jnp.asarray(24), params))
+        i, j = 3, 24
+        compounded = np.zeros((3, 3))
+        for k in range(i + 1, j + 1):
+            T_j_k = np.linalg.inv(T[j]) @ T[k]
+            R, t = T_j_k[:2, :2], T_j_k[:2, 2]
+            Ad = np.eye(3)
+            Ad[:2, :2], Ad[:2, 2] = R, [t[1], -t[0]]
+            compounded += Ad @ np.linalg.inv(chain_info[k - 1]) @ Ad.T
+        meas = np.array([_pose_of(np.linalg.inv(T[a]) @ T[b]) for a, b in zip(chain_i, chain_j)])
+        g = build_graph(poses, chain_i, chain_j, meas, chain_info, fixed=fixed)
+        chain_only = np.asarray(cov(g, jnp.asarray(i), jnp.asarray(j), params))
+        np.testing.assert_allclose(chain_only, compounded, rtol=1e-5, atol=1e-9)
+        assert np.all(np.linalg.eigvalsh(chain_only - with_loops) > 0)  # the loops tie the two nodes tighter

@@ -11,6 +11,12 @@ the chain claimed a median heading std of 3.7 deg where its error had a median o
 spread with it through the lever arm of every link, so a wrong closure a metre off could pass. The price: a heading
 that has run away on wrong priors (P small, the error large) now also refuses the closures that would bring it
 back, where the wide chain let them through (the README's Exploration section measures both).
+
+A chain leaves out the loop closures that already tie node i to node j, and so grants a closure as much room as
+the links compounded over the whole walk between the two visits. With `SlamParams.loop_graph_covariance` (slam.yaml's
+`loop_consistency_graph`) the graph's uncertainty is instead the covariance of node j in node i's frame from the
+whole graph's information (`kernels.posegraph.relative_covariance`: its links, leg-odometry edges, heading priors and
+closures), which is no wider than the chain's.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from jaxquad.kernels.chain_filter import filtered_covariance
 from jaxquad.kernels.lie import se2, xy_theta
+from jaxquad.kernels.posegraph import relative_covariance
 from jaxquad.slam.state import SlamParams, SlamSpec, SlamState
 
 
@@ -60,14 +67,25 @@ def chain_covariance_with_priors(
 
 
 def loop_chi2(
-    spec: SlamSpec, params: SlamParams, state: SlamState, i, j, z: Float[Array, "3"], cov_z: Float[Array, "3 3"]
+    spec: SlamSpec,
+    params: SlamParams,
+    state: SlamState,
+    i,
+    j,
+    z: Float[Array, "3"],
+    cov_z: Float[Array, "3 3"],
+    candidate: Bool[Array, ""] = True,
 ) -> Float[Array, ""]:
-    """Chi-square of a loop constraint z (node j in node i's frame) against the graph's estimate of it."""
+    """Chi-square of a loop constraint z (node j in node i's frame) against the graph's estimate of it. With
+    `params.loop_graph_covariance` the graph's uncertainty is its whole information's (`kernels.posegraph.
+    relative_covariance`, solved only for a `candidate`), else the chain's."""
     x = state.graph.poses
     r = xy_theta(se2(z).inverse() @ se2(x[i]).inverse() @ se2(x[j]))
     if spec.wall_heading:  # one chain computed, the priors applied or not
         chain = chain_covariance_with_priors(state, i, j, params.loop_chain_priors)
     else:
         chain = chain_covariance(state, i, j)
-    S = chain + cov_z
+    use_graph = jnp.asarray(params.loop_graph_covariance)
+    whole = relative_covariance(state.graph, i, j, params.solver, use_graph & candidate)
+    S = jnp.where(use_graph, whole, chain) + cov_z
     return r @ jnp.linalg.solve(0.5 * (S + S.T) + 1e-9 * jnp.eye(3), r)

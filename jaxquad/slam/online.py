@@ -276,7 +276,7 @@ def _close_loop(spec: SlamSpec, params: SlamParams, state: SlamState, j, respons
     L = se2(params.T_base_laser)
     z = xy_theta(L @ se2(cand.T_i_j) @ L.inverse())
     cov_z = _to_base_cov(params, cand.covariance) * params.match_cov_scale
-    chi2 = loop_chi2(spec, params, state, cand.i, j, z, cov_z)
+    chi2 = loop_chi2(spec, params, state, cand.i, j, z, cov_z, cand.accept)
     accept = cand.accept & (chi2 <= params.loop_max_chi2)
     robust = jnp.where(params.robust_loops, ROBUST_CAUCHY, ROBUST_NONE)
     state = _add_edge(state, cand.i, j, z, _information(cov_z), robust, EDGE_LOOP, accept)

@@ -25,6 +25,7 @@ _SWITCHES = (  # 0 or 1
     "wall_heading",
     "wall_heading_gate_with_r",
     "wall_heading_in_loop_test",
+    "loop_consistency_graph",
 )
 _INTEGER = (
     "scan_buffer_size",
@@ -215,5 +216,6 @@ def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=
         heading_max_chi2=f(v["wall_heading_max_chi2"]),
         heading_gate_with_r=jnp.asarray(v["wall_heading_gate_with_r"] == 1),
         loop_chain_priors=jnp.asarray(v["wall_heading_in_loop_test"] == 1),
+        loop_graph_covariance=jnp.asarray(v["loop_consistency_graph"] == 1),
     )
     return spec, params

@@ -74,6 +74,8 @@ class SlamParams(eqx.Module):
     heading_halves_tolerance: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.0))  # rad; 0: no test
     # the loop test's chain filtered by the wall-heading priors (jaxquad.slam.consistency)
     loop_chain_priors: Bool[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(True))
+    # the loop test's covariance from the whole graph's information in place of the chain (jaxquad.slam.consistency)
+    loop_graph_covariance: Bool[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(False))
 
 
 class SlamInputs(eqx.Module):
