@@ -198,23 +198,27 @@ def relative_covariance(
     with H = J_e^T W J_e over the free nodes (robust edges weighed at their current errors, fixed nodes held) and
     J the relative pose's Jacobian in nodes i and j; three CG solves (`params`' tolerance, iteration cap and
     preconditioner). Every edge tying i to j counts, loop closures included, unlike a chain compounded link by
-    link. `when` false: zeros, and no CG iteration runs (also under vmap)."""
-    width = jnp.asarray(params.robust_width, graph.poses.dtype)
-    active = graph.node_mask & ~graph.fixed
-    normal = _linearize(graph, width)
-    x_i, x_j = graph.poses[i], graph.poses[j]
-    _, A, B = _error_and_jacobians(x_i, x_j, xy_theta(se2(x_i).inverse() @ se2(x_j)))
+    link. `when` false: zeros, and nothing is computed (a loop of 0 trips, also under vmap)."""
     dtype = graph.poses.dtype
-    A, B = A * active[i].astype(dtype), B * active[j].astype(dtype)  # a fixed node does not move
-    J = jnp.zeros((3,) + graph.poses.shape, graph.poses.dtype).at[:, i].add(A).at[:, j].add(B)  # (3, n, 3)
-    J = J * jnp.asarray(when).astype(dtype)
-    lam = jnp.zeros((), graph.poses.dtype)
-    solve = lambda rhs: _pcg(  # noqa: E731
-        graph, normal, active, lam, params.cg_tol, params.cg_max_iterations, params.preconditioner, rhs
-    )[0]
-    X = jax.vmap(solve)(J)  # (3, n, 3): H^-1 J^T, one column per row of J
-    cov = jnp.einsum("anc,bnc->ab", J, X)
-    return 0.5 * (cov + cov.T)
+    width = jnp.asarray(params.robust_width, dtype)
+    active = graph.node_mask & ~graph.fixed
+
+    def solve(carry):
+        normal = _linearize(graph, width)
+        x_i, x_j = graph.poses[i], graph.poses[j]
+        _, A, B = _error_and_jacobians(x_i, x_j, xy_theta(se2(x_i).inverse() @ se2(x_j)))
+        A, B = A * active[i].astype(dtype), B * active[j].astype(dtype)  # a fixed node does not move
+        J = jnp.zeros((3,) + graph.poses.shape, dtype).at[:, i].add(A).at[:, j].add(B)  # (3, n, 3)
+        lam = jnp.zeros((), dtype)
+        cg = lambda rhs: _pcg(  # noqa: E731
+            graph, normal, active, lam, params.cg_tol, params.cg_max_iterations, params.preconditioner, rhs
+        )[0]
+        X = jax.vmap(cg)(J)  # (3, n, 3): H^-1 J^T, one column per row of J
+        cov = jnp.einsum("anc,bnc->ab", J, X)
+        return carry[0] + 1, 0.5 * (cov + cov.T)
+
+    trips = jnp.where(when, 1, 0)
+    return jax.lax.while_loop(lambda c: c[0] < trips, solve, (jnp.asarray(0), jnp.zeros((3, 3), dtype)))[1]
 
 
 class _LMState(eqx.Module):
