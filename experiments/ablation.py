@@ -80,9 +80,10 @@ def _variant_inputs(log, est, robot, variants, values: dict, every: int) -> dict
     """Per variant the SLAM inputs of every robot: shared leg-odometry inputs, the variant's scans and
     odometry (each scan kind and each coupling computed once)."""
     from jaxquad.estimate.laser import every_nth_frame, leg_laser_inputs, scan_ranges, visual_odometry_2d
+    from jaxquad.slam import map_max_range
     from jaxquad.slam.variants import VARIANTS
 
-    rmax = values["max_laser_range"]
+    rmax = map_max_range(values)
     # The paper's scans keep the minimum of the band (as `jaxquad slam --variant` does).
     base = leg_laser_inputs(log, est, "stabilized", 5, 0.2, rmax, values["leg_yaw_rate_std"], "min")
     # `base` already holds the stabilized scans and the leg-inertial odometry: each is computed once.
@@ -116,7 +117,7 @@ def run_cell(args, robot_name: str, world: str) -> dict:
     from jaxquad.robots import load
     from jaxquad.sim.fleet import FleetConfig
     from jaxquad.sim.rollout import rollout
-    from jaxquad.slam import final_poses, load_params, map_grid, run_fleet, slam_config
+    from jaxquad.slam import final_poses, load_params, map_grid, map_max_range, run_fleet, slam_config
     from jaxquad.slam.report import robot_report, robot_slice
     from jaxquad.slam.variants import VARIANTS
 
@@ -145,7 +146,7 @@ def run_cell(args, robot_name: str, world: str) -> dict:
     wall["estimate_vo_scans_s"] = time.perf_counter() - t0
     # One map extent for every variant (so one compiled SLAM per constraint kind): all their odometries.
     grid = map_grid(
-        {"odom": np.concatenate([x["odom"] for x in xs.values()])}, values["resolution"], values["max_laser_range"]
+        {"odom": np.concatenate([x["odom"] for x in xs.values()])}, values["resolution"], map_max_range(values)
     )
     scores, figure = {}, {"grid": grid, "true_map": maps[world_index[0] % len(maps)], "runs": {}}
     for name, x in xs.items():

@@ -96,11 +96,11 @@ def errors_deg(x: dict, truths: np.ndarray, every: float, skip: float) -> dict:
         rotate_spectrum,
         wall_directions,
     )
-    from jaxquad.slam import grid_spec, slam_config
+    from jaxquad.slam import grid_spec, map_max_range, slam_config
     from jaxquad.slam.heading import HALVES_MIN_QUALITY
 
     base = ExploreConfig(world="warehouse").slam_values()
-    grid = grid_spec((-0.5, -0.5, 15.5, 20.5), base["resolution"], base["max_laser_range"])
+    grid = grid_spec((-0.5, -0.5, 15.5, 20.5), base["resolution"], map_max_range(base))
     spec, params = slam_config(base, grid, "preintegrated")
     hs, hp = spec.heading, params.heading
     bearings = jnp.asarray(x["bearings"], jnp.float32)

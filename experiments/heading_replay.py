@@ -179,11 +179,11 @@ def score(variant: str, state, out, x: dict, truths: np.ndarray, wall_s: float) 
 def run(args) -> list[dict]:
     from jaxquad.cli import progress_bar
     from jaxquad.explore.fleet import ExploreConfig
-    from jaxquad.slam import grid_spec, run_fleet, slam_config
+    from jaxquad.slam import grid_spec, map_max_range, run_fleet, slam_config
 
     x, truths = inputs(args.robots, args.seconds, args.seed, args.scan_height)
     base = ExploreConfig(world="warehouse", seconds=args.seconds, slam_params=args.params).slam_values()
-    grid = grid_spec((-0.5, -0.5, 15.5, 20.5), base["resolution"], base["max_laser_range"])
+    grid = grid_spec((-0.5, -0.5, 15.5, 20.5), base["resolution"], map_max_range(base))
     rows = []
     for variant in args.variants:
         spec, params = slam_config(base | VARIANTS[variant], grid, "preintegrated")

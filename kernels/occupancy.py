@@ -120,8 +120,9 @@ def scan_evidence(
     range_max = jnp.minimum(params.range_max, spec.max_range)
     no_return = (ranges >= range_max) & ~jnp.isnan(ranges)  # +inf included
     valid = no_return | (jnp.isfinite(ranges) & (ranges >= params.range_min))
-    far = no_return & (ranges < params.clear_range)  # finite: clear_range is
-    cleared = jnp.maximum(range_max, ranges - params.clear_margin * ranges**2)
+    far = no_return & jnp.isfinite(ranges) & (ranges < params.clear_range)
+    r_far = jnp.where(far, ranges, range_max)  # finite on every ray (no inf - inf below, nor in its gradient)
+    cleared = jnp.maximum(range_max, r_far - params.clear_margin * r_far**2)
     r = jnp.where(far, cleared, jnp.where(no_return | ~valid, range_max, ranges + params.hit_offset))
     r = jnp.minimum(r, spec.max_range)
     angle = pose[2] + bearings

@@ -195,16 +195,19 @@ def relative_covariance(
 ) -> Float[Array, "3 3"]:
     """Covariance of node j's pose in node i's frame, in the edge error's coordinates (translation and angle of
     X_i^-1 X_j against its current value), from the whole graph's information at the current poses: J H^-1 J^T
-    with H = J_e^T W J_e over the free nodes (robust edges weighed at their current errors, fixed nodes held) and
-    J the relative pose's Jacobian in nodes i and j; three CG solves (`params`' tolerance, iteration cap and
-    preconditioner). Every edge tying i to j counts, loop closures included, unlike a chain compounded link by
-    link. `when` false: zeros, and nothing is computed (a loop of 0 trips, also under vmap)."""
+    with H = J_e^T Omega J_e over the free nodes (every edge at its full information, robust or not, as a chain
+    compounds its links; fixed nodes held) and J the relative pose's Jacobian in nodes i and j; three CG solves
+    (`params`' tolerance, iteration cap and preconditioner). Every edge tying i to j counts, loop closures
+    included, unlike a chain compounded link by link. `when` false: zeros, computed in a loop of 0 trips (under
+    vmap the batch pays for the solves whenever one of its members has `when` true)."""
     dtype = graph.poses.dtype
     width = jnp.asarray(params.robust_width, dtype)
     active = graph.node_mask & ~graph.fixed
 
+    plain = eqx.tree_at(lambda g: g.robust, graph, jnp.full_like(graph.robust, ROBUST_NONE))
+
     def solve(carry):
-        normal = _linearize(graph, width)
+        normal = _linearize(plain, width)
         x_i, x_j = graph.poses[i], graph.poses[j]
         _, A, B = _error_and_jacobians(x_i, x_j, xy_theta(se2(x_i).inverse() @ se2(x_j)))
         A, B = A * active[i].astype(dtype), B * active[j].astype(dtype)  # a fixed node does not move

@@ -15,7 +15,7 @@ import pytest
 from scipy.optimize import least_squares
 
 from jaxquad.kernels import chain_precond
-from jaxquad.kernels.posegraph import ROBUST_CAUCHY, ROBUST_HUBER, _rho_and_weight
+from jaxquad.kernels.posegraph import ROBUST_CAUCHY, ROBUST_HUBER, _rho_and_weight, relative_covariance
 from jaxquad.slam import SolverParams, build_graph, chi2, edge_error, manhattan_graph, optimize, stack_graphs
 
 _optimize = jax.jit(optimize)
@@ -26,13 +26,12 @@ def _mat(p):
     return np.array([[c, -s, p[0]], [s, c, p[1]], [0.0, 0.0, 1.0]])
 
 
-def _g2o_error_np(xi, xj, z):
-    E = np.linalg.inv(_mat(z)) @ np.linalg.inv(_mat(xi)) @ _mat(xj)
-    return np.array([E[0, 2], E[1, 2], np.arctan2(E[1, 0], E[0, 0])])
-
-
 def _pose_of(T):
     return np.array([T[0, 2], T[1, 2], np.arctan2(T[1, 0], T[0, 0])])
+
+
+def _g2o_error_np(xi, xj, z):
+    return _pose_of(np.linalg.inv(_mat(z)) @ np.linalg.inv(_mat(xi)) @ _mat(xj))
 
 
 def _gtsam_solve(poses, ei, ej, meas, info, fixed, robust=None):
@@ -229,12 +228,13 @@ def test_preconditioners_reach_the_same_optimum():
         assert int(outs[0][1].cg_iterations) < int(outs[1][1].cg_iterations)
 
 
-def _dense_relative_covariance(poses, ei, ej, info, fixed, i, j, h=1e-6):
-    """J H^-1 J^T by NumPy: central finite differences of the g2o errors (measurements equal to the poses' own
+def _dense_relative_covariance(poses, ei, ej, info, fixed, i, j, meas=None, h=1e-6):
+    """J H^-1 J^T by NumPy: central finite differences of the g2o errors (default measurements: the poses' own
     relative poses, so every error is zero) in additive perturbations of the free nodes, and a dense inverse."""
     free = np.flatnonzero(~fixed)
     col = {k: n for n, k in enumerate(free)}
-    meas = [np.asarray(_pose_of(np.linalg.inv(_mat(poses[a])) @ _mat(poses[b]))) for a, b in zip(ei, ej)]
+    if meas is None:
+        meas = [_pose_of(np.linalg.inv(_mat(poses[a])) @ _mat(poses[b])) for a, b in zip(ei, ej)]
 
     def jac(f, x):
         out = []
@@ -267,8 +267,6 @@ def test_relative_covariance_equals_a_dense_inverse_and_the_chain_without_loops(
     """The whole graph's covariance of node j in node i's frame against NumPy's dense J H^-1 J^T; on a chain alone it
     is the links' covariances compounded (`slam.consistency.chain_covariance`'s closed form); a loop edge between the
     two nodes narrows it; `when` false gives zeros."""
-    from jaxquad.kernels.posegraph import relative_covariance
-
     rng = np.random.default_rng(3)
     n = 30
     T = [np.eye(3)]
@@ -313,3 +311,15 @@ def test_relative_covariance_equals_a_dense_inverse_and_the_chain_without_loops(
         chain_only = np.asarray(cov(g, jnp.asarray(i), jnp.asarray(j), params))
         np.testing.assert_allclose(chain_only, compounded, rtol=1e-5, atol=1e-9)
         assert np.all(np.linalg.eigvalsh(chain_only - with_loops) > 0)  # the loops tie the two nodes tighter
+        # Errors off zero, and robust (Cauchy) edges counted at their full information, as a chain's links are.
+        ei, ej = np.r_[chain_i, loops_i], np.r_[chain_j, loops_j]
+        info = np.r_[chain_info, loop_info]
+        meas = np.array([_pose_of(np.linalg.inv(T[a]) @ T[b]) for a, b in zip(ei, ej)]) + rng.normal(0, 0.05, (32, 3))
+        g = build_graph(poses, ei, ej, meas, info, fixed=fixed, robust="cauchy")
+        ref = _dense_relative_covariance(poses, ei, ej, info, fixed, 3, 24, meas)
+        np.testing.assert_allclose(np.asarray(cov(g, jnp.asarray(3), jnp.asarray(24), params)), ref, rtol=1e-5)
+    # float32 with the solver's defaults (the online SLAM's): within 2 % of the dense float64 reference.
+    g = build_graph(poses, ei, ej, meas, info, fixed=fixed, dtype=jnp.float32)
+    ref = _dense_relative_covariance(poses, ei, ej, info, fixed, 3, 24)
+    got = np.asarray(cov(g, jnp.asarray(3), jnp.asarray(24), SolverParams()), np.float64)
+    assert np.all(np.abs(got - ref) <= 0.02 * np.sqrt(np.outer(np.diag(ref), np.diag(ref)))), (got, ref)

@@ -76,8 +76,9 @@ def add_loop_arguments(parser: argparse.ArgumentParser) -> None:
         "--map-clear-range",
         type=float,
         default=c.map_clear_range,
-        help="readings from the map's range up to this mark no wall but clear the map along their ray, short of "
-        f"the reading by three std of the depth noise, m; 0: off (default {c.map_clear_range:g})",
+        help="readings from --map-range up to this mark no wall but clear the map along their ray, short of the "
+        "reading by three std of the depth noise, m, at most the camera's 8 m, in place of the SLAM file's "
+        f"occupancy_clear_range; 0 or at most --map-range: off (default {c.map_clear_range:g})",
     )
     parser.add_argument(
         "--footprint-padding",

@@ -58,7 +58,8 @@ class ExploreConfig:
     clearance: float = 0.75  # m from every box for the starts (a robot turning in place sweeps ~0.4 m)
     map_range: float = 4.0  # m: longer readings are no-returns for the map (depth noise, 1 % of z^2, is 16 cm at 4 m)
     # m: readings from map_range up to this mark no wall but clear the map along their ray, stopping three noise std
-    # short of the reading (`kernels.occupancy`; the SLAM file's occupancy_clear_margin); 0: not beyond map_range.
+    # short of the reading (`kernels.occupancy`; the SLAM file's occupancy_clear_margin); in place of the file's
+    # occupancy_clear_range, at most SCAN_RANGE; 0 (or at most map_range): not beyond map_range.
     # 100 Go2 runs, H200, 0 -> 8 m: warehouse 900 s runs at 95 % 47 -> 56 (of the clear cells 56 -> 70), lost 13 ->
     # 16; house 600 s 78 -> 75 (92 -> 93), coverage at 2 min 0.795 -> 0.813 (README, exploration).
     map_clear_range: float = SCAN_RANGE

@@ -136,8 +136,14 @@ def _logit(p: float) -> float:
 
 
 def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=(0.0, 0.0, 0.0)):
-    """(SlamSpec, SlamParams) of checked `values` (from `load_params`) for a map `grid`."""
+    """(SlamSpec, SlamParams) of checked `values` (from `load_params`) for a map `grid`, whose rays must reach
+    `occupancy_clear_range` when it lies beyond `max_laser_range` (`map_max_range`)."""
     v = values
+    if v["occupancy_clear_range"] > max(v["max_laser_range"], grid.max_range):
+        raise ValueError(
+            f"occupancy_clear_range {v['occupancy_clear_range']} m lies beyond the map grid's rays ({grid.max_range} "
+            "m): size the grid with slam.map_max_range"
+        )
     res = v["correlation_search_space_resolution"]
     window = max(1, round(v["correlation_search_space_dimension"] / 2 / res))
     deg = math.degrees
