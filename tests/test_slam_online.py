@@ -354,6 +354,8 @@ def test_params_file_checks(tmp_path):
     occ = slam_config(values | {"occupancy_clear_range": 6.0, "occupancy_clear_margin": 0.02}, GRID, "off")[1]
     assert float(occ.occupancy.clear_range) == 6.0 and float(occ.occupancy.clear_margin) == pytest.approx(0.02)
     assert values["occupancy_clear_range"] == 0.0 and map_max_range(values) == values["max_laser_range"]
+    with pytest.raises(ValueError, match="occupancy_clear_range 30.0 m lies beyond the map grid's rays"):
+        slam_config(values | {"occupancy_clear_range": 30.0}, GRID, "off")
     explore_values = ExploreConfig(map_range=4.0, map_clear_range=20.0).slam_values()
     assert explore_values["max_laser_range"] == 4.0 and map_max_range(explore_values) == SCAN_RANGE
     assert ExploreConfig(map_hit_offset_cells=1.0).slam_values()["occupancy_hit_offset_cells"] == 1.0
