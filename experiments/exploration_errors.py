@@ -17,8 +17,10 @@ the next, else `heading` where the final heading error is `HEADING_DEG` or more,
 last sample (a sample can precede the collision by up to `sample_s`: the distance need not be 0), the control mode
 then, whether the run was walking to a view goal and its SLAM error, and `collisions_by_box` counts them; with
 the loop candidates in the traces (`exploration.py`'s `loop_events`), per lost run the accepted closure that changed
-its SLAM error most, and `loops`: how many candidates were accepted and refused, and the accepted ones that moved a
-run's error by more than `JUMP_M` (their count, runs, and chi-squares); with the final maps in the
+its SLAM error most, the last accepted closure that carried its error from under `LOST_M` (the loop's lost limit) to
+`LOST_M` or more, and how many of its candidates were refused; and `loops`: how many candidates were accepted and
+refused, the accepted ones that moved a run's error by more than `JUMP_M` (their count, runs, and chi-squares), and
+how many lost runs a closure carried across `LOST_M` (`lost_across_by_closure`); with the final maps in the
 traces (`exploration.py --traces` keeps them since `6a3bdcf`), their scores against the true map per outcome
 (`jaxquad.metrics.map_scores`: IoU median and 10-90 %, precision and recall medians) and, over the runs that ended
 `explored`, the correlation of the map IoU with the run's median SLAM position error.
@@ -35,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 JUMP_M = 0.3  # m: an accepted closure that moves the SLAM position error by more than this
+LOST_M = 0.5  # m: the exploration loop's `lost_error` (jaxquad.explore.fleet)
 # deg: a lost run's final heading error from which the heading counts as its cause: walls seen at the 4 m map range
 # then land 0.2 m astray, beyond what scan matching against the run's own map pulls back.
 HEADING_DEG = 3.0
@@ -118,8 +121,12 @@ def summarize(d: dict, yaw_walk: float) -> dict:
         })  # fmt: skip
         if "loop_chi2" in d:
             runs[-1]["largest_closure"] = _largest_closure(d, i)
+            runs[-1]["closure_across_lost"] = _closure_across_lost(d, i)
+            runs[-1]["refused_closures"] = int(np.sum((d["loop_run"] == i) & ~d["loop_accepted"].astype(bool)))
     causes = {c: sum(r["cause"] == c for r in runs) for c in ("jump", "heading", "drift")}
     loops = {"loops": loop_summary(d)} if "loop_chi2" in d else {}
+    if "loop_chi2" in d:
+        loops["lost_across_by_closure"] = sum(r["closure_across_lost"] is not None for r in runs)
     return loops | {"runs": int(err.shape[1]), "lost": len(runs), "randomized_noise": randomize, "sample_s": tick,
             "per_minute": minutes, "lost_runs": runs, "lost_causes": causes}  # fmt: skip
 
@@ -167,15 +174,35 @@ def _closure_change(d: dict) -> np.ndarray:
     return d["loop_error_after_m"] - d["loop_error_before_m"]
 
 
+def _candidate(d: dict, k: int) -> dict:
+    """Loop candidate k: its time, chi-square and its run's SLAM position error before and after it."""
+    keys = ("t_s", "chi2", "error_before_m", "error_after_m")
+    values = (d["loop_t"][k], d["loop_chi2"][k], d["loop_error_before_m"][k], d["loop_error_after_m"][k])
+    return {key: float(v) for key, v in zip(keys, values)}
+
+
 def _largest_closure(d: dict, run: int) -> dict | None:
     """The run's accepted closure that changed its SLAM position error most (None without one)."""
     k = np.flatnonzero((d["loop_run"] == run) & d["loop_accepted"].astype(bool))
     if not k.size:
         return None
     k = k[np.argmax(np.abs(np.nan_to_num(_closure_change(d)[k])))]
-    keys = ("t_s", "chi2", "error_before_m", "error_after_m")
-    values = (d["loop_t"][k], d["loop_chi2"][k], d["loop_error_before_m"][k], d["loop_error_after_m"][k])
-    return {key: float(v) for key, v in zip(keys, values)}
+    return _candidate(d, k)
+
+
+def _closure_across_lost(d: dict, run: int) -> dict | None:
+    """The run's last accepted closure that carried its SLAM position error from under `LOST_M` to `LOST_M` or more
+    (None where none did)."""
+    k = np.flatnonzero(
+        (d["loop_run"] == run)
+        & d["loop_accepted"].astype(bool)
+        & (d["loop_error_before_m"] < LOST_M)
+        & (d["loop_error_after_m"] >= LOST_M)
+    )
+    if not k.size:
+        return None
+    k = k[np.argmax(d["loop_t"][k])]
+    return _candidate(d, k)
 
 
 def loop_summary(d: dict) -> dict:

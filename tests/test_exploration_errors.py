@@ -210,6 +210,26 @@ def test_loop_candidates_kept_at_every_tick_and_the_closures_that_jumped(tmp_pat
     big = run["largest_closure"]  # of run 1's two closures, the one that moved its error by 0.502 m
     assert big["chi2"] == 12.0 and big["t_s"] == pytest.approx(T[700], rel=1e-6)
     assert big["error_after_m"] - big["error_before_m"] == pytest.approx(0.502, abs=1e-5)
+    # run 1's error was already past 0.5 m at both closures: neither carried it across; it had no refused candidate
+    assert run["closure_across_lost"] is None and run["refused_closures"] == 0 and s["lost_across_by_closure"] == 0
+
+
+def test_the_closure_that_carried_a_lost_runs_error_across_the_limit():
+    """Of a run's accepted closures, the last one taking its error from under 0.5 m to 0.5 m or more; refused ones,
+    other runs' and falls back under the limit do not count."""
+    events = [  # (t, run, chi2, accepted, before, after)
+        (10.0, 0, 3.0, True, 0.10, 0.55),  # across: the first of run 0's two
+        (20.0, 0, 40.0, False, 0.30, 0.70),  # refused
+        (30.0, 0, 5.0, True, 0.40, 0.60),  # across again, later: this one
+        (35.0, 0, 2.0, True, 0.60, 0.45),  # back under: not across
+        (40.0, 1, 6.0, True, 0.20, 0.90),  # another run's
+        (50.0, 2, 1.0, True, 0.45, 0.49),  # stays under
+    ]
+    t, run, chi2, accepted, before, after = (np.array(c) for c in zip(*events))
+    d = dict(loop_t=t, loop_run=run, loop_chi2=chi2, loop_accepted=accepted, loop_error_before_m=before,
+             loop_error_after_m=after)  # fmt: skip
+    assert errors._closure_across_lost(d, 0) == {"t_s": 30.0, "chi2": 5.0, "error_before_m": 0.4, "error_after_m": 0.6}
+    assert errors._closure_across_lost(d, 1)["t_s"] == 40.0 and errors._closure_across_lost(d, 2) is None
 
 
 @pytest.mark.parametrize(
