@@ -124,9 +124,10 @@ def summarize(d: dict, yaw_walk: float) -> dict:
             runs[-1]["closure_across_lost"] = _closure_across_lost(d, i)
             runs[-1]["refused_closures"] = int(np.sum((d["loop_run"] == i) & ~d["loop_accepted"].astype(bool)))
     causes = {c: sum(r["cause"] == c for r in runs) for c in ("jump", "heading", "drift")}
-    loops = {"loops": loop_summary(d)} if "loop_chi2" in d else {}
+    loops = {}
     if "loop_chi2" in d:
-        loops["lost_across_by_closure"] = sum(r["closure_across_lost"] is not None for r in runs)
+        across = sum(r["closure_across_lost"] is not None for r in runs)
+        loops = {"loops": loop_summary(d), "lost_across_by_closure": across}
     return loops | {"runs": int(err.shape[1]), "lost": len(runs), "randomized_noise": randomize, "sample_s": tick,
             "per_minute": minutes, "lost_runs": runs, "lost_causes": causes}  # fmt: skip
 

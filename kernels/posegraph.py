@@ -203,7 +203,6 @@ def relative_covariance(
     dtype = graph.poses.dtype
     width = jnp.asarray(params.robust_width, dtype)
     active = graph.node_mask & ~graph.fixed
-
     plain = eqx.tree_at(lambda g: g.robust, graph, jnp.full_like(graph.robust, ROBUST_NONE))
 
     def solve(carry):
