@@ -12,8 +12,10 @@ from jaxquad.io.carmen import (
     in_time_order,
     load_laser_log,
     read_carmen,
+    repeated_stamps,
     save_laser_npz,
     scan_clock,
+    untie_stamps,
 )
 
 
@@ -109,13 +111,53 @@ def test_stamps_out_of_order_scans_kept_odom_dropped(tmp_path):
     np.testing.assert_array_equal(log.odom_t, [1.95])
 
 
+def _untie_reference(t, untimed_dt=1.0):
+    """Runs of equal consecutive stamps spread by a plain loop over the runs."""
+    runs = []  # [first index, size]
+    for i, v in enumerate(t):
+        if runs and v == t[runs[-1][0]]:
+            runs[-1][1] += 1
+        else:
+            runs.append([i, 1])
+    steps = [
+        (t[runs[k + 1][0]] - t[i]) / n if k + 1 < len(runs) and t[runs[k + 1][0]] > t[i] else None
+        for k, (i, n) in enumerate(runs)
+    ]
+    known = [d for d in steps if d is not None]
+    fallback = float(np.median(known)) if known else untimed_dt
+    out = []
+    for (i, n), d in zip(runs, steps):
+        out += [t[i] + j * (fallback if d is None else d) for j in range(n)]
+    return np.array(out)
+
+
+def test_repeated_stamps_are_spread_and_untimed_logs_clocked_by_scan():
+    # Stamps written with six digits (10,000 s a step) and ones written as zeros, as in public corrected logs.
+    t = np.array([1.13486e9] * 4 + [1.13487e9] * 2 + [1.13488e9])
+    np.testing.assert_allclose(untie_stamps(t), 1.13486e9 + 1e3 * np.array([0.0, 2.5, 5.0, 7.5, 10.0, 15.0, 20.0]))
+    assert repeated_stamps(t) == 4
+    np.testing.assert_array_equal(untie_stamps(np.array([3.0, 3.0])), [3.0, 4.0])  # no step known: 1 s
+    np.testing.assert_array_equal(untie_stamps(np.arange(5.0)), np.arange(5.0))  # unique stamps as they are
+    rng = np.random.default_rng(1)
+    for _ in range(30):
+        t = np.sort(rng.integers(0, 5, rng.integers(1, 12))).astype(float)
+        if rng.random() < 0.3:
+            t[rng.integers(0, t.size)] = -1.0  # a stray stamp
+        np.testing.assert_allclose(untie_stamps(t), _untie_reference(t))
+    # Most stamps repeated: they time nothing, and the clock steps 1 s per scan (the node rule goes by travel).
+    np.testing.assert_array_equal(scan_clock(np.zeros(5)), np.arange(5.0))
+    np.testing.assert_array_equal(scan_clock(np.array([7.0, 7.0, 7.0, 7.0, 8.0])), 7.0 + np.arange(5.0))
+    # A few repeats in a timed log: spread to the next stamp.
+    np.testing.assert_array_equal(scan_clock(np.array([0.0, 1.0, 1.0, 2.0, 3.0])), [0.0, 1.0, 1.5, 2.0, 3.0])
+
+
 def test_one_stray_stamp_is_the_one_out_of_order():
     unix = 1.7e9 + np.arange(6.0)
     cases = [
         ([1.0, 2.0, 3.0], [1.0, 2.0, 3.0]),
         ([1.0, 1e9, 2.0, 3.0], [1.0, 1.0, 2.0, 3.0]),  # one stamp far ahead holds nothing back
         ([5.0, 1.0, 2.0, 3.0], [1.0, 1.0, 2.0, 3.0]),  # one far behind at the start
-        ([2.0, 2.0, 1.0], [2.0, 2.0, 2.0]),
+        ([2.0, 2.0, 1.0], [2.0, 3.0, 3.0]),  # a repeat before no later stamp: 1 s apart (no step to copy)
         (np.r_[0.0, unix[1:]], np.r_[0.0, unix[1:]]),  # a zero stamp before Unix ones is in order
     ]
     for t, clock in cases:

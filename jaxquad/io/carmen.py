@@ -25,7 +25,10 @@ such as the `ODOM ... 0 host 0` lines of corrected logs). The stamps in order ar
 non-decreasing run of them (`in_time_order`), so that one stray stamp, early or late, is the one left
 out. The scans are taken in the file's order, each keeping its own `ipc_timestamp`; a scan whose stamp
 is out of order gets the SLAM's clock of the scan before it (`scan_clock`). ODOM lines out of order
-are dropped.
+are dropped. Some logs repeat stamps: written with six digits (`1.13486e+09`: 10,000 s a step) or
+as zeros. A run of equal stamps is spread evenly up to the next stamp (`untie_stamps`) in the trajectories
+written and in the SLAM's clock, so that each scan has a time of its own; when most stamps repeat, the
+clock steps `UNTIMED_DT` (1 s) per scan instead and the node rule goes by travel alone (`scan_clock`).
 
 `.npz` laser log (float64 arrays):
 
@@ -58,6 +61,8 @@ from jaxquad.io.files import read_npz
 from jaxquad.kernels.lie import SE2
 
 _TAG = re.compile(r"[A-Z][A-Z0-9_]*$")
+# Seconds between scans of a log whose stamps carry no time at all (all equal): the node rule then goes by travel.
+UNTIMED_DT = 1.0
 _REQUIRED = ("scan_t", "ranges", "bearings", "odom_t", "odom_xytheta")
 _OPTIONAL = ("scan_odom_xytheta", "T_base_laser_xytheta", "gt_xytheta")
 
@@ -257,10 +262,42 @@ def in_time_order(t: np.ndarray) -> np.ndarray:
     return keep
 
 
-def scan_clock(scan_t: np.ndarray) -> np.ndarray:
-    """The SLAM's clock at each scan: its stamp where the stamps are in order (`in_time_order`), else the
-    clock of the scan before (the first in-order stamp before any)."""
+def untie_stamps(t: np.ndarray, untimed_dt: float = UNTIMED_DT) -> np.ndarray:
+    """Stamps `t` (S,) with each run of equal consecutive stamps spread evenly up to the stamp after it: a
+    run of k scans at c followed by c' > c becomes c, c + (c' - c) / k, ... A run followed by no greater stamp
+    (the last, or one before a stray stamp) takes the median per-scan step of the runs that spread, or
+    `untimed_dt` s when none did (a log whose stamps are all equal). Unique stamps are returned as they are."""
+    t = np.asarray(t, np.float64)
+    if t.size < 2:
+        return t.copy()
+    first = np.r_[True, t[1:] != t[:-1]]
+    starts = np.flatnonzero(first)
+    group = np.cumsum(first) - 1
+    base = t[starts]
+    after = np.r_[base[1:], np.nan]
+    with np.errstate(invalid="ignore"):
+        spreads = after > base
+    step = np.where(spreads, (after - base) / np.diff(np.r_[starts, t.size]), np.nan)
+    fallback = float(np.median(step[spreads])) if spreads.any() else untimed_dt
+    step = np.where(spreads, step, fallback)
+    return base[group] + (np.arange(t.size) - starts[group]) * step[group]
+
+
+def repeated_stamps(t: np.ndarray) -> int:
+    """How many of stamps `t` equal the one before."""
+    t = np.asarray(t, np.float64)
+    return int(np.sum(t[1:] == t[:-1]))
+
+
+def scan_clock(scan_t: np.ndarray, untimed_dt: float = UNTIMED_DT) -> np.ndarray:
+    """The SLAM's clock at each scan: its stamp (repeated stamps spread by `untie_stamps`) where the stamps
+    are in order (`in_time_order`), else the clock of the scan before (the first in-order stamp before any).
+    When most stamps repeat the one before, they do not time the scans (a log written with six digits holds
+    hundreds of scans at one stamp): the scans are then clocked `untimed_dt` s apart from the first stamp."""
     t = np.asarray(scan_t, np.float64)
+    if 2 * repeated_stamps(t) > t.size:
+        return (t[0] if np.isfinite(t[0]) else 0.0) + untimed_dt * np.arange(t.size)
+    t = untie_stamps(t, untimed_dt)
     keep = in_time_order(t)
     if not keep.any():
         return t

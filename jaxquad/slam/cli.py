@@ -262,6 +262,8 @@ def run(args: argparse.Namespace) -> int:
         "params": values,
         # Scans whose stamp is out of time order (they keep it in the files; jaxquad.io.carmen).
         "scans_out_of_time_order": int((~in_time_order(stamp)).sum()),
+        # Scans stamped as the scan before (a log written with few digits); spread in the files (jaxquad.io.carmen).
+        "scans_with_repeated_stamps": int(x.get("stamps_repeated", 0)),
         "grid": {k: getattr(grid, k) for k in ("rows", "cols", "resolution", "origin_x", "origin_y", "max_range")},
         "robots": [],
     }

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxquad import parallel
-from jaxquad.io.carmen import LaserLog, scan_clock
+from jaxquad.io.carmen import LaserLog, repeated_stamps, scan_clock, untie_stamps
 from jaxquad.kernels.occupancy import GridSpec
 from jaxquad.slam import online
 from jaxquad.slam import state as slam_state
@@ -32,7 +32,8 @@ CHUNK = 64
 def laser_log_inputs(log: LaserLog) -> dict:
     """The SLAM inputs of a 2D laser log (one robot, no leg odometry): the odometry pose of each scan
     is the one recorded with it, else the odometry interpolated at the scan's stamp. `t` is the SLAM's
-    clock (`scan_clock`), `stamp` each scan's own stamp (for the trajectories written)."""
+    clock (`scan_clock`), `stamp` each scan's own stamp, repeated ones spread (`untie_stamps`; for the
+    trajectories written)."""
     if log.scan_odom_xytheta is not None:
         odom = log.scan_odom_xytheta
     else:
@@ -41,7 +42,8 @@ def laser_log_inputs(log: LaserLog) -> dict:
     S = log.n_scans
     x = {
         "t": scan_clock(log.scan_t),
-        "stamp": log.scan_t,
+        "stamp": untie_stamps(log.scan_t),
+        "stamps_repeated": repeated_stamps(log.scan_t),
         "odom": odom[None],
         "ranges": log.ranges[None],
         "bearings": log.bearings,
