@@ -4,7 +4,7 @@
         [--robots 2] [--seconds 10] [--style aggressive] [--contacts truth] [--scan-hz 10]
         [--lo-constraints off velocity preintegrated] [--band-height 5] [--band-reduce median]
         [--map-scans every|nodes]
-        [--throughput 1 4096] [--devices 1 2] [--params slam.yaml] [--json rows.json]
+        [--throughput 1 4096] [--devices 1 2] [--params slam.yaml] [--view-range 8] [--json rows.json]
 
 For each robot and world it simulates a fleet (`jaxquad.sim.rollout`, depth on, `--robots` robots in
 up to 4 distinct worlds), runs the estimator once (leg-inertial odometry with `--contacts`, the
@@ -15,8 +15,9 @@ Printed as Markdown, means +- std over the fleet's robots: ATE (m, SE(3)-aligned
 of the odometry alone, of the online SLAM pose at each scan and of the final (after the last
 optimization) trajectory; occupied-cell IoU, precision and recall of the final map against the true
 map (`jaxquad.metrics.map_scores`: recall counts every visible wall of the world, also those never in
-view; the in-view IoU only the walls an ideal laser on the true path faced,
-`jaxquad.metrics.cells_in_view`); loop closures per robot; the SLAM's wall time. A second table scores
+view; the in-view IoU only the walls an ideal laser on the true path faced, out to `--view-range`,
+the params' `max_laser_range` by default, `jaxquad.metrics.cells_in_view`); loop closures per robot; the
+SLAM's wall time. A second table scores
 the graphs' edges at the true node poses, pooled over the fleet (`jaxquad.slam.report.edge_errors`): per
 edge kind the rms error (x, y, heading), the mean chi-square against the edges' information (3 when
 calibrated) and the edges off by more than 0.3 m. With --throughput
@@ -77,7 +78,8 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list, edge_rows: 
     grid = map_grid(x, values["resolution"], map_max_range(values))
     world_index = np.asarray(log["world_index"])
     robot_maps = [maps[world_index[i] % len(maps)] for i in range(args.robots)]
-    in_view = [truth_in_view(x, i, robot_maps[i], values["max_laser_range"]) for i in range(args.robots)]
+    view_range = args.view_range or values["max_laser_range"]
+    in_view = [truth_in_view(x, i, robot_maps[i], view_range) for i in range(args.robots)]
     for lo in args.lo_constraints:
         spec, params = slam_config(values, grid, lo, x["T_base_laser"])
         t0 = time.perf_counter()
@@ -192,6 +194,13 @@ def main() -> None:
         nargs="+",
         default=[None],
         help="device counts the speed table's robots are split over, a row each (default: all devices)",
+    )
+    p.add_argument(
+        "--view-range",
+        type=float,
+        default=None,
+        help="range of the ideal laser that decides the in-view walls, m (default: the params' max_laser_range, "
+        "the range that marks walls)",
     )
     p.add_argument("--json", default=None, help="also write every robot's report to this JSON file")
     args = p.parse_args()

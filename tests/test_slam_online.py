@@ -286,6 +286,16 @@ def test_cli_on_a_laser_npz_with_truth_and_a_carmen_log(tmp_path, capsys):
     np.testing.assert_allclose(read_tum(tmp_path / "b" / "trajectory_final.tum").t_s, log.scan_t, rtol=0, atol=1e-3)
     capsys.readouterr()
 
+    # The same log with every stamp written as 0 (as some public logs are): the scans are clocked 1 s apart, so
+    # the node rule goes by travel and adds about the nodes of the timed log, and every scan keeps a pose.
+    zero = [ln.replace(f"{t:.3f} host {t:.3f}", "0 host 0") for ln, t in zip(lines[1:], log.scan_t)]
+    (tmp_path / "zero.clf").write_text("\n".join(zero) + "\n")
+    assert main(argv[:1] + [str(tmp_path / "zero.clf"), "--out", str(tmp_path / "z")] + argv[4:]) == 0
+    assert json.loads(capsys.readouterr().out)["scans_with_repeated_stamps"] == len(zero) - 1
+    nodes = [json.loads((tmp_path / k / "summary.json").read_text())["robots"][0]["nodes"] for k in "bz"]
+    assert abs(nodes[0] - nodes[1]) <= 2 and nodes[1] > 20, nodes
+    np.testing.assert_array_equal(read_tum(tmp_path / "z" / "trajectory_final.tum").t_s, np.arange(len(zero)))
+
     # One-line errors before any work: a malformed line, a bad parameter, an output in the way.
     (tmp_path / "bad.clf").write_text(lines[1] + "\nFLASER 3 1.0 oops\n")
     assert main(["slam", str(tmp_path / "bad.clf"), "--out", str(tmp_path / "c")]) == 1

@@ -297,6 +297,9 @@ def _brief(summary: dict, out) -> dict:
         "nodes": [r["nodes"] for r in robots],
         "loop_closures": [r["loop_closures"] for r in robots],
     }
+    for key in ("scans_out_of_time_order", "scans_with_repeated_stamps"):  # a laser log's stamps, read as said
+        if summary[key]:
+            brief[key] = summary[key]
     for which in ("odometry", "online", "final"):
         ate = [r["scores"][which]["ate"]["rmse"] for r in robots if "ate" in r.get("scores", {}).get(which, {})]
         if ate:
