@@ -15,15 +15,14 @@ Printed as Markdown, means +- std over the fleet's robots: ATE (m, SE(3)-aligned
 of the odometry alone, of the online SLAM pose at each scan and of the final (after the last
 optimization) trajectory; occupied-cell IoU, precision and recall of the final map against the true
 map (`jaxquad.metrics.map_scores`: recall counts every visible wall of the world, also those never in
-view; the in-view IoU only the walls an ideal laser on the true path faced, out to `--view-range`,
-the params' `max_laser_range` by default, `jaxquad.metrics.cells_in_view`); loop closures per robot; the
-SLAM's wall time. A second table scores
-the graphs' edges at the true node poses, pooled over the fleet (`jaxquad.slam.report.edge_errors`): per
-edge kind the rms error (x, y, heading), the mean chi-square against the edges' information (3 when
-calibrated) and the edges off by more than 0.3 m. With --throughput
-B...: the real-time factor (scan time span / wall time, compile apart) of B robots' online SLAM in one
-jitted vmapped run (the fleet's robots repeated), split over each
-device count of --devices in turn; robot-s per s = B x span / wall, the robots it keeps in real time.
+view; the in-view IoU only the walls an ideal laser on the true path faced, out to `--view-range`, by
+default the longest reading the map reads, `jaxquad.slam.map_max_range`, `jaxquad.metrics.cells_in_view`);
+loop closures per robot; the SLAM's wall time. A second table scores the graphs' edges at the true node
+poses, pooled over the fleet (`jaxquad.slam.report.edge_errors`): per edge kind the rms error (x, y,
+heading), the mean chi-square against the edges' information (3 when calibrated) and the edges off by more
+than 0.3 m. With --throughput B...: the real-time factor (scan time span / wall time, compile apart) of B
+robots' online SLAM in one jitted vmapped run (the fleet's robots repeated), split over each device count of
+--devices in turn; robot-s per s = B x span / wall, the robots it keeps in real time.
 """
 
 from __future__ import annotations
@@ -78,7 +77,7 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list, edge_rows: 
     grid = map_grid(x, values["resolution"], map_max_range(values))
     world_index = np.asarray(log["world_index"])
     robot_maps = [maps[world_index[i] % len(maps)] for i in range(args.robots)]
-    view_range = args.view_range or values["max_laser_range"]
+    view_range = args.view_range or map_max_range(values)
     in_view = [truth_in_view(x, i, robot_maps[i], view_range) for i in range(args.robots)]
     for lo in args.lo_constraints:
         spec, params = slam_config(values, grid, lo, x["T_base_laser"])
@@ -199,8 +198,8 @@ def main() -> None:
         "--view-range",
         type=float,
         default=None,
-        help="range of the ideal laser that decides the in-view walls, m (default: the params' max_laser_range, "
-        "the range that marks walls)",
+        help="range of the ideal laser that decides the in-view walls, m (default: the longest reading the map "
+        "reads, max_laser_range or occupancy_clear_range beyond it)",
     )
     p.add_argument("--json", default=None, help="also write every robot's report to this JSON file")
     args = p.parse_args()

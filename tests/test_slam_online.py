@@ -363,7 +363,7 @@ def test_params_file_checks(tmp_path):
     # Far readings clear the map only where asked; the map's grids then reach the clear range, the scans' at most.
     occ = slam_config(values | {"occupancy_clear_range": 6.0, "occupancy_clear_margin": 0.02}, GRID, "off")[1]
     assert float(occ.occupancy.clear_range) == 6.0 and float(occ.occupancy.clear_margin) == pytest.approx(0.02)
-    assert values["occupancy_clear_range"] == 0.0 and map_max_range(values) == values["max_laser_range"]
+    assert values["occupancy_clear_range"] == 8.0 and map_max_range(values) == 8.0 > values["max_laser_range"]
     with pytest.raises(ValueError, match="occupancy_clear_range 30.0 m lies beyond the map grid's rays"):
         slam_config(values | {"occupancy_clear_range": 30.0}, GRID, "off")
     explore_values = ExploreConfig(map_range=4.0, map_clear_range=20.0).slam_values()
