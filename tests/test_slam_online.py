@@ -338,6 +338,7 @@ def test_params_file_checks(tmp_path):
     from jaxquad.kernels.occupancy import OccupancyParams
     from jaxquad.slam.params import slam_config
 
+    values = values | {"occupancy_clear_range": 0.0}  # GRID's rays stop at 6 m, short of slam.yaml's 8 m clearing
     occ = slam_config(values, GRID, "off")[1].occupancy
     assert float(occ.l_occ) == pytest.approx(float(OccupancyParams().l_occ), rel=1e-6)
     assert float(occ.l_free) == pytest.approx(float(OccupancyParams().l_free), rel=1e-6)
@@ -360,14 +361,18 @@ def test_params_file_checks(tmp_path):
 
     assert ExploreConfig().slam_values()["occupancy_hit_offset_cells"] == 1.0  # exploration's default: a whole cell
     assert ExploreConfig(map_hit_offset_cells=0.0).slam_values()["occupancy_hit_offset_cells"] == 0.0
-    # Far readings clear the map only where asked; the map's grids then reach the clear range, the scans' at most.
+    # Far readings clear the map (slam.yaml: walls to 5 m, clearing to 8 m); the map's grids reach the clear range.
     occ = slam_config(values | {"occupancy_clear_range": 6.0, "occupancy_clear_margin": 0.02}, GRID, "off")[1]
     assert float(occ.occupancy.clear_range) == 6.0 and float(occ.occupancy.clear_margin) == pytest.approx(0.02)
-    assert values["occupancy_clear_range"] == 8.0 and map_max_range(values) == 8.0 > values["max_laser_range"]
+    defaults = load_params()
+    assert defaults["occupancy_clear_range"] == 8.0 and map_max_range(defaults) == 8.0 > defaults["max_laser_range"]
+    with pytest.raises(ValueError, match="occupancy_clear_range 8.0 m lies beyond the map grid's rays"):
+        slam_config(defaults, GRID, "off")
     with pytest.raises(ValueError, match="occupancy_clear_range 30.0 m lies beyond the map grid's rays"):
         slam_config(values | {"occupancy_clear_range": 30.0}, GRID, "off")
     explore_values = ExploreConfig(map_range=4.0, map_clear_range=20.0).slam_values()
     assert explore_values["max_laser_range"] == 4.0 and map_max_range(explore_values) == SCAN_RANGE
+    assert ExploreConfig(map_range=6.0).slam_values()["max_laser_range"] == 6.0  # beyond slam.yaml's walls, to 8 m
     assert ExploreConfig(map_hit_offset_cells=1.0).slam_values()["occupancy_hit_offset_cells"] == 1.0
     with pytest.raises(ValueError, match="map_hit_offset_cells"):
         ExploreConfig(map_hit_offset_cells=1.5)

@@ -243,7 +243,7 @@ def test_settings_of_the_slam_file_and_of_exploration(tmp_path):
     with pytest.raises(ValueError, match="wall_heading must be 0 or 1"):
         load_params(bad)
     grid = grid_spec((0.0, 0.0, 4.0, 4.0), 0.05, 4.0)
-    values = load_params()
+    values = load_params() | {"occupancy_clear_range": 0.0}  # the grid's rays stop at 4 m
     assert values["wall_heading"] == 0
     off, _ = slam_config(values, grid, "preintegrated")
     on, _ = slam_config(values | {"wall_heading": 1}, grid, "preintegrated")
@@ -407,8 +407,9 @@ def test_near_and_far_halves_disagree_by_a_turned_crates_angle():
     spec = SlamSpec(grid=grid, nodes=8, wall_heading=True)
     laser = 0.3  # the laser turned off the base: the halves are measured at the sensor's heading
     params = SlamParams(T_base_laser=jnp.asarray([0.0, 0.0, laser], jnp.float32))
-    assert float(slam_config(load_params(), grid, "off")[1].heading_halves_tolerance) == 0.0  # slam.yaml: off
-    on = slam_config(load_params() | {"wall_heading_halves_tolerance": 0.03}, grid, "off")[1]
+    values = load_params() | {"occupancy_clear_range": 0.0}  # the grid's rays stop at 6 m
+    assert float(slam_config(values, grid, "off")[1].heading_halves_tolerance) == 0.0  # slam.yaml: off
+    on = slam_config(values | {"wall_heading_halves_tolerance": 0.03}, grid, "off")[1]
     assert float(on.heading_halves_tolerance) == np.float32(0.03)
     state = init(spec, params, jnp.asarray(BEARINGS, jnp.float32))
     state = eqx.tree_at(

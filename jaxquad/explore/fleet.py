@@ -137,8 +137,9 @@ class ExploreConfig:
 
     def slam_values(self) -> dict:
         """The SLAM parameters, with node slots for a node every `minimum_time_interval` of the run, the map's
-        range at most `map_range` (clearing to `map_clear_range`), its miss probability `map_miss_probability`,
-        its hit offset `map_hit_offset_cells`, and wall-heading priors for the full variant when `wall_heading`."""
+        range `map_range` (at most the longest reading the SLAM file reads), clearing to `map_clear_range`, its miss
+        probability `map_miss_probability`, its hit offset `map_hit_offset_cells`, and wall-heading priors for the
+        full variant when `wall_heading`."""
         values = slam.load_params(self.slam_params)
         if not values["occupancy_clamp_min_probability"] < self.map_miss_probability:
             source = self.slam_params or slam.params.DEFAULTS_FILE
@@ -151,7 +152,7 @@ class ExploreConfig:
         return values | {
             "node_capacity": nodes,
             "occupancy_hit_offset_cells": self.map_hit_offset_cells,
-            "max_laser_range": min(values["max_laser_range"], self.map_range),
+            "max_laser_range": min(slam.map_max_range(values), self.map_range),
             "occupancy_clear_range": min(self.map_clear_range, SCAN_RANGE),
             "occupancy_miss_probability": self.map_miss_probability,
             "wall_heading": int(self.wall_heading and self.variant == "full"),
