@@ -77,7 +77,7 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list, edge_rows: 
     grid = map_grid(x, values["resolution"], map_max_range(values))
     world_index = np.asarray(log["world_index"])
     robot_maps = [maps[world_index[i] % len(maps)] for i in range(args.robots)]
-    view_range = args.view_range or map_max_range(values)
+    view_range = map_max_range(values) if args.view_range is None else args.view_range
     in_view = [truth_in_view(x, i, robot_maps[i], view_range) for i in range(args.robots)]
     for lo in args.lo_constraints:
         spec, params = slam_config(values, grid, lo, x["T_base_laser"])
@@ -203,6 +203,8 @@ def main() -> None:
     )
     p.add_argument("--json", default=None, help="also write every robot's report to this JSON file")
     args = p.parse_args()
+    if args.view_range is not None and not args.view_range > 0:
+        p.error(f"--view-range must be positive, got {args.view_range}")
     args.robot, args.world = args.robot or ["go2"], args.world or ["house"]
     if args.band_height < 1:
         p.error(f"--band-height must be >= 1, got {args.band_height}")

@@ -274,9 +274,8 @@ def run(args: argparse.Namespace) -> int:
             s_i, o_i = (report.robot_slice(a, i) for a in (state, out))
             report.write_robot(folder, grid, stamp, s_i, o_i, final[i])
             true_map = None if true_maps is None else true_maps[i]
-            # in view: the walls within the longest reading the map reads (also those read only to clear)
-            in_view = None if true_map is None else report.truth_in_view(x, i, true_map, map_max_range(values))
-            rep = report.robot_report(spec, t, s_i, o_i, final[i], x, i, true_map, in_view)
+            # in view: the walls within the grid's rays, the longest reading the map reads (map_max_range)
+            rep = report.robot_report(spec, t, s_i, o_i, final[i], x, i, true_map)
             summary["robots"].append({"name": name, **rep})
             if true_maps is not None:
                 gt = x["gt"][i] if "gt" in x else None
