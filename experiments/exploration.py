@@ -42,6 +42,7 @@ GOAL = 0.95  # coverage a run should reach
 
 def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     """What a cell's row depends on: a finished row in --checkpoint is reused only for the same settings."""
+    from jaxquad.explore.fleet import leg_bias_sideways
     from jaxquad.slam import load_params
 
     keep = ("runs", "seconds", "seed", "samples", "horizon", "every", "band_height", "band_reduce")
@@ -52,6 +53,7 @@ def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     settings |= {k: getattr(args, k) for k in keep}
     settings["low_obstacles"] = args.low_obstacles == "on"  # rows kept before "on"/"off" hold a bool
     settings["view_goals"] = args.view_goals == "on"
+    settings["leg_bias_sideways"] = leg_bias_sideways(robot, args.leg_bias_sideways)  # the value the robot runs with
     if variant != "full":  # the baseline never takes wall-heading priors, marks low obstacles or seeks views
         settings |= {"wall_heading": "off", "low_obstacles": False, "view_goals": False}
     return settings
@@ -82,6 +84,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         # rows kept before --slam-params and the options below it had none: the values they ran with
         old = {"slam_params": None, "revisit_after": 0.0, "footprint_padding": 0.1, "low_obstacles": False}
         old |= {"wall_heading": "off", "map_hit_offset_cells": 0.0, "view_goals": False, "map_clear_range": 0.0}
+        old |= {"leg_bias_sideways": 0.0}
         if old | saved.get("settings", {}) != settings:
             raise CheckpointError(f"{done}: a finished cell of other settings; remove it or choose another folder")
         print(f"{name}: finished earlier ({done})", file=sys.stderr, flush=True)
@@ -106,6 +109,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         revisit_after=args.revisit_after,
         footprint_padding=args.footprint_padding,
         map_clear_range=args.map_clear_range,
+        leg_bias_sideways=args.leg_bias_sideways,
         low_obstacles=args.low_obstacles == "on",
         view_goals=args.view_goals == "on",
         trace_robots=args.runs if args.traces else 4,
@@ -145,6 +149,9 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         "revisits_closed": summary["revisits_closed"],
         "view_s": summary["view_s"],
         "slam_error_m": summary["slam_error_m"],
+        # the SLAM's last estimate of each run's leg-odometry velocity bias (base frame; 0 when not estimated)
+        "leg_bias_mps_median": np.median(result.lo_bias, axis=0).tolist(),
+        "leg_bias_mps_p10_p90": np.percentile(result.lo_bias, [10, 90], axis=0).tolist(),
         "compile_s": result.compile_s,
         "run_s": result.run_s,
         "chunk_s": summary["timing"]["chunk_s"],
@@ -197,7 +204,7 @@ def save_traces(path: Path, result, every_s: float = 0.0) -> None:
     cfg = result.config
     ticks = trace_ticks(np.asarray(result.t), every_s)
     arrays = {k: np.asarray(getattr(result, k))[ticks] for k in SERIES}
-    keep = ("outcome", "end_t", "distance", "nodes", "loops", "revisits", "revisits_closed", "starts")
+    keep = ("outcome", "end_t", "distance", "nodes", "loops", "revisits", "revisits_closed", "starts", "lo_bias")
     arrays |= {k: np.asarray(getattr(result, k)) for k in keep}
     arrays |= loop_events(result)
     arrays |= {"maps": result.maps, "reachable": result.reachable, "clear": result.clear, "true_map": result.truth.grid}

@@ -1,7 +1,8 @@
 """Pure jitted math for one robot: contact observer, leg twist, scan slicing, Lie groups (`lie`), pose graphs,
-occupancy grids, scan matching, wall-direction headings, AMCL, costmaps, planning, MPPI, frontiers and the places
-they are seen from. `vmap` at the call site."""
+occupancy grids, scan matching, the leg odometry's bias filter, wall-direction headings, AMCL, costmaps, planning,
+MPPI, frontiers and the places they are seen from. `vmap` at the call site."""
 
+from jaxquad.kernels.bias_filter import BiasFilter, bias_filter_init, bias_predict, bias_update
 from jaxquad.kernels.contact import ContactEstimate, ContactObserver, ObserverParams, ObserverState
 from jaxquad.kernels.costmap import (
     CostGrid,
@@ -82,6 +83,10 @@ from jaxquad.kernels.wall_heading import (
 )
 
 __all__ = [
+    "BiasFilter",
+    "bias_filter_init",
+    "bias_predict",
+    "bias_update",
     "Alignment",
     "AmclInputs",
     "AmclOutput",

@@ -214,6 +214,21 @@ def test_fleet_equals_single_robots():
     np.testing.assert_allclose(out2.pose[1, : len(other)], outs2.pose[0], atol=1e-4)
 
 
+def test_leg_odometry_bias_learned_and_taken_out():
+    """Leg odometry that reads 3 cm/s too far to the left of the base at every step (exact otherwise): with the bias
+    estimated (`lo_bias_std`) the SLAM learns most of it from the matches and its online poses err less; with the
+    default (0) nothing is estimated."""
+    b = 0.03
+    lo = _integrate(LOOP[0], _relative(LOOP[:-1], LOOP[1:]) + [0.0, b * DT, 0.0])
+    x = _inputs(LOOP, lo, lo, LOOP_RANGES)
+    _, out_off, online_off = run_fleet(_spec("preintegrated"), SlamParams(), x)
+    _, out_on, online_on = run_fleet(_spec("preintegrated"), SlamParams(lo_bias_std=jnp.full(2, 0.05, jnp.float32)), x)
+    np.testing.assert_array_equal(online_off.lo_bias.x[0, 2:], 0.0)
+    bias = online_on.lo_bias.x[0, 2:]
+    assert 0.5 * b < bias[1] < 1.5 * b and abs(bias[0]) < 0.3 * b, bias
+    assert _ate(out_on.pose[0], LOOP) < 0.7 * _ate(out_off.pose[0], LOOP)
+
+
 def _small_params(tmp_path):
     p = tmp_path / "slam.yaml"
     p.write_text("node_capacity: 32\nscan_buffer_size: 20\nmatch_max_range: 4.0\nmax_laser_range: 6.0\n")
@@ -385,3 +400,13 @@ def test_params_file_checks(tmp_path):
         ExploreConfig(slam_params=str(clamp), map_miss_probability=0.34).slam_values()["occupancy_miss_probability"]
         == 0.34
     )
+    # The sideways leg-odometry bias: estimated for the Badger by default, not for the Go2; an explicit value wins.
+    assert load_params()["leg_bias_std_sideways"] == 0.0 == load_params()["leg_bias_std_forward"]
+    assert ExploreConfig(robot="badger").slam_values()["leg_bias_std_sideways"] == 0.01
+    assert ExploreConfig(robot="go2").slam_values()["leg_bias_std_sideways"] == 0.0
+    assert ExploreConfig(robot="badger", leg_bias_sideways=0.0).slam_values()["leg_bias_std_sideways"] == 0.0
+    bias_values = ExploreConfig(leg_bias_sideways=0.02).slam_values() | {"occupancy_clear_range": 0.0}
+    sideways = slam_config(bias_values, GRID, "preintegrated")[1].lo_bias_std
+    np.testing.assert_allclose(sideways, [0.0, 0.02])
+    with pytest.raises(ValueError, match="leg_bias_sideways"):
+        ExploreConfig(leg_bias_sideways=-0.01)

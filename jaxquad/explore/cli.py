@@ -81,6 +81,14 @@ def add_loop_arguments(parser: argparse.ArgumentParser) -> None:
         f"occupancy_clear_range; 0 or at most --map-range: off (default {c.map_clear_range:g})",
     )
     parser.add_argument(
+        "--leg-bias-sideways",
+        type=float,
+        default=None,
+        help="prior std of the leg odometry's sideways velocity bias, which the SLAM estimates from its scan matches "
+        "and takes out of its leg edges, m/s, in place of the SLAM file's leg_bias_std_sideways; 0: not estimated "
+        "(default: the robot's, 0.01 for the Badger, whose leg odometry drifts sideways, 0 for the Go2)",
+    )
+    parser.add_argument(
         "--footprint-padding",
         type=float,
         default=c.footprint_padding,
@@ -104,6 +112,9 @@ def check_loop_arguments(args: argparse.Namespace) -> None:
     ):
         if not (math.isfinite(value) and value >= 0):
             raise ValueError(f"{option} must be a finite number >= 0, got {value}")
+    bias = args.leg_bias_sideways
+    if bias is not None and not (math.isfinite(bias) and bias >= 0):
+        raise ValueError(f"--leg-bias-sideways must be a finite number >= 0, got {bias}")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -223,6 +234,7 @@ def run(args: argparse.Namespace) -> int:
         view_goals=args.view_goals == "on",
         footprint_padding=args.footprint_padding,
         map_clear_range=args.map_clear_range,
+        leg_bias_sideways=args.leg_bias_sideways,
         band_height=args.band_height,
         band_reduce=args.band_reduce,
         trace_robots=max(args.plot_robots, 1),

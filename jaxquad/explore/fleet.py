@@ -40,6 +40,17 @@ from jaxquad.nav.fleet_loop import compile_chunk, keep_first, loop_functions, pl
 VARIANTS = {"full": ("leg", "stabilized", "preintegrated"), "baseline": ("visual", "baseline", "off")}
 TRACED = ("true_pose", "pose", "goal", "mode")  # outputs kept for the first `trace_robots` robots only
 SCAN_RANGE = 8.0  # m, the scans' range limit (the depth camera's); scan matching reads up to match_max_range
+# m/s: each robot's prior std of its leg odometry's sideways velocity bias, which the full variant's SLAM estimates
+# from its scan matches (`jaxquad.slam.leg_bias`) unless `ExploreConfig.leg_bias_sideways` says otherwise. The
+# Badger's leg odometry drifts sideways 2.5-3.5 mm/s at exploration's pace (its spine's swing): 100 runs in the
+# warehouse, 240 s, H200: lost 19 -> 6, SLAM position error at 4 min 0.258 -> 0.216 m (median). The Go2's drifts
+# 0.1-0.5 mm/s, below the estimate's own spread (about +-2 mm/s): not estimated (README, exploration).
+LEG_BIAS_SIDEWAYS = {"badger": 0.01}
+
+
+def leg_bias_sideways(robot: str, value: float | None) -> float:
+    """m/s: `value`, or the robot's default (`LEG_BIAS_SIDEWAYS`, else 0: not estimated) when None."""
+    return LEG_BIAS_SIDEWAYS.get(robot, 0.0) if value is None else float(value)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -83,6 +94,10 @@ class ExploreConfig:
     # (the hit offset above). 100 runs per robot in the house, 600 s, 0.1 -> 0.15: collided + lost Go2 14 -> 3,
     # Badger 48 -> 23; runs at 95 % Go2 84 -> 78, Badger 22 -> 24 (README, exploration).
     footprint_padding: float = 0.15
+    # m/s: prior std of the leg odometry's sideways velocity bias, which the SLAM estimates from its scan matches and
+    # takes out of its leg edges (`jaxquad.slam.leg_bias`), in place of the SLAM file's leg_bias_std_sideways; 0: not
+    # estimated; None: the robot's default (`LEG_BIAS_SIDEWAYS`).
+    leg_bias_sideways: float | None = None
     spin_rate: float = 0.6  # rad/s, turning in place without a goal
     finish_time: float = 12.0  # s without a goal before exploration counts as finished (one turn and more)
     # Obstacles under the camera's scan plane (a pallet lower than the camera), marked from the depth image's points
@@ -115,6 +130,9 @@ class ExploreConfig:
         for name in ("revisit_after", "footprint_padding", "map_clear_range"):  # 0: never, none, off
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {getattr(self, name)}")
+        bias = leg_bias_sideways(self.robot, self.leg_bias_sideways)
+        if not (math.isfinite(bias) and bias >= 0):
+            raise ValueError(f"leg_bias_sideways must be a finite number >= 0, got {self.leg_bias_sideways}")
         if not 0.0 < self.map_miss_probability < 0.5:
             raise ValueError(f"map_miss_probability must lie in (0, 0.5), got {self.map_miss_probability}")
         if not 0.0 <= self.map_hit_offset_cells <= 1.0:
@@ -139,7 +157,7 @@ class ExploreConfig:
         """The SLAM parameters, with node slots for a node every `minimum_time_interval` of the run, the map's
         range `map_range` (at most the longest reading the SLAM file reads), clearing to `map_clear_range`, its miss
         probability `map_miss_probability`, its hit offset `map_hit_offset_cells`, and wall-heading priors for the
-        full variant when `wall_heading`."""
+        full variant when `wall_heading`, and the sideways leg-odometry bias's prior `leg_bias_sideways`."""
         values = slam.load_params(self.slam_params)
         if not values["occupancy_clamp_min_probability"] < self.map_miss_probability:
             source = self.slam_params or slam.params.DEFAULTS_FILE
@@ -156,6 +174,7 @@ class ExploreConfig:
             "occupancy_clear_range": min(self.map_clear_range, SCAN_RANGE),
             "occupancy_miss_probability": self.map_miss_probability,
             "wall_heading": int(self.wall_heading and self.variant == "full"),
+            "leg_bias_std_sideways": leg_bias_sideways(self.robot, self.leg_bias_sideways),
         }
 
 
@@ -187,6 +206,7 @@ class ExploreResult:
     viewing: np.ndarray  # (T, N) the goal was a view goal
     loop_closed: np.ndarray  # (T, N) the SLAM accepted a loop closure on the tick
     loop_chi2: np.ndarray  # (T, N) consistency chi-square of a loop candidate past the match tests (NaN: none)
+    lo_bias: np.ndarray  # (N, 2) m/s: the SLAM's last estimate of the leg odometry's velocity bias, base frame
     true_pose: np.ndarray  # (T, n_trace, 3)
     pose: np.ndarray  # (T, n_trace, 3) SLAM pose
     goal: np.ndarray  # (T, n_trace, 3) the frontier or view goal (or revisited node), x y yaw
@@ -400,6 +420,7 @@ def explore(
         viewing=trace.viewing[:, :n],
         loop_closed=trace.loop_closed[:, :n],
         loop_chi2=trace.loop_chi2[:, :n],
+        lo_bias=np.asarray(states.slam.lo_bias.x)[:n, 2:],
         true_pose=trace.true_pose,
         pose=trace.pose,
         goal=trace.goal,

@@ -120,6 +120,7 @@ def summarize(result, every: float = 5.0) -> dict:
                 "slam_error_m": _stats(err),
                 "slam_nodes": int(result.nodes[i]),
                 "loop_closures": int(result.loops[i]),
+                "leg_bias_mps": result.lo_bias[i].tolist(),  # the SLAM's estimate, base frame x y (0: not estimated)
                 "revisits": int(result.revisits[i]),
                 "revisits_closed": int(result.revisits_closed[i]),
                 "revisit_s": float(result.revisiting[result.active[:, i], i].sum() * tick_s),

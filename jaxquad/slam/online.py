@@ -68,6 +68,7 @@ from jaxquad.kernels.posegraph import ROBUST_CAUCHY, ROBUST_NONE, PoseGraph, opt
 from jaxquad.kernels.scan_grid import likelihood_grid, world_points
 from jaxquad.kernels.scan_match import match_scan
 from jaxquad.slam import heading as wall_heading
+from jaxquad.slam import leg_bias
 from jaxquad.slam.consistency import loop_chi2
 from jaxquad.slam.state import (
     EDGE_HEADING,
@@ -179,9 +180,9 @@ def _leg_edge(spec: SlamSpec, params: SlamParams, state: SlamState, last, inp: S
         z = state.node_twist[last] * dt
         ok = state.node_lo_valid[last] & (dt > 0) & (dt < params.velocity_max_dt)
         return z, jnp.diag(1.0 / params.velocity_cov), ok & jnp.all(jnp.isfinite(z))
-    z = _between(state.node_lo[last], inp.lo_pose)
+    z, cov = leg_bias.correct_edge(state, _between(state.node_lo[last], inp.lo_pose), state.lo_cov)
     ok = state.node_lo_valid[last] & state.lo_ok & inp.lo_valid & jnp.all(jnp.isfinite(z))
-    return z, _information(state.lo_cov), ok & jnp.all(jnp.isfinite(state.lo_cov))
+    return z, _information(cov), ok & jnp.all(jnp.isfinite(cov))
 
 
 def _add_node(spec: SlamSpec, params: SlamParams, state: SlamState, pred, inp: SlamInputs):
@@ -201,6 +202,10 @@ def _add_node(spec: SlamSpec, params: SlamParams, state: SlamState, pred, inp: S
         pose = jnp.where(leg_ok, fused, pose)
         info_step = info_step + jnp.where(leg_ok, info_leg, 0.0)
     pose = jnp.where(first, pred, pose)
+    if spec.lo_constraints == "preintegrated":
+        dt = inp.t - state.node_t[last]
+        bias = leg_bias.node_update(params, state, x_last, pose, z_leg, leg_ok, matched, cov_match, good, dt, first)
+        state = eqx.tree_at(lambda s: (s.lo_bias, s.lo_bias_jac), state, (bias, jnp.zeros((2, 2))))
     cov_step = jnp.where(first, 0.0, jnp.linalg.inv(info_step))
     heading_error = jnp.asarray(jnp.nan)
     if spec.wall_heading:
@@ -289,6 +294,8 @@ def _close_loop(spec: SlamSpec, params: SlamParams, state: SlamState, j, respons
         state,
         (graph, state.loops + accept.astype(state.loops.dtype), state.map_stale | accept),
     )
+    if spec.lo_constraints == "preintegrated":
+        state = leg_bias.reanchor(state, j, accept)
     return state, response, accept, jnp.where(accept, cand.i, -1), jnp.where(cand.accept, chi2, jnp.nan)
 
 
@@ -316,7 +323,8 @@ def _accumulate_lo(params: SlamParams, state: SlamState, inp: SlamInputs) -> Sla
     dt = jnp.clip(inp.t - state.t_prev, 0.0)
     cov = A @ state.lo_cov @ A.T + inp.lo_twist_cov * (params.lo_correlation_s * dt)
     ok = state.lo_ok & inp.lo_valid & jnp.all(jnp.isfinite(d)) & jnp.all(jnp.isfinite(inp.lo_twist_cov))
-    return eqx.tree_at(lambda s: (s.lo_cov, s.lo_ok), state, (jnp.where(ok, cov, state.lo_cov), ok))
+    H = leg_bias.accumulate(state, inp, dt, ok)
+    return eqx.tree_at(lambda s: (s.lo_cov, s.lo_ok, s.lo_bias_jac), state, (jnp.where(ok, cov, state.lo_cov), ok, H))
 
 
 def _usable(inp: SlamInputs) -> Bool[Array, ""]:

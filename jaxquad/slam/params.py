@@ -59,6 +59,9 @@ _MAY_BE_ZERO = (
     "occupancy_hit_offset_cells",
     "occupancy_clear_range",
     "occupancy_clear_margin",
+    "leg_bias_std_forward",
+    "leg_bias_std_sideways",
+    "leg_bias_random_walk",
 )
 
 
@@ -223,5 +226,8 @@ def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=
         heading_gate_with_r=jnp.asarray(v["wall_heading_gate_with_r"] == 1),
         loop_chain_priors=jnp.asarray(v["wall_heading_in_loop_test"] == 1),
         loop_graph_covariance=jnp.asarray(v["loop_consistency_graph"] == 1),
+        lo_bias_std=f([v["leg_bias_std_forward"], v["leg_bias_std_sideways"]]),
+        lo_bias_walk=f(v["leg_bias_random_walk"]),
+        lo_bias_gate=f(v["leg_bias_gate_chi2"]),
     )
     return spec, params

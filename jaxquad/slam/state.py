@@ -8,6 +8,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from jaxquad.kernels.bias_filter import BiasFilter, bias_filter_init
 from jaxquad.kernels.loop_closure import LoopParams, LoopSpec
 from jaxquad.kernels.occupancy import GridSpec, OccupancyGrid, OccupancyParams, init_grid
 from jaxquad.kernels.posegraph import PoseGraph, SolverParams
@@ -76,6 +77,11 @@ class SlamParams(eqx.Module):
     loop_chain_priors: Bool[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(True))
     # the loop test's covariance from the whole graph's information in place of the chain (jaxquad.slam.consistency)
     loop_graph_covariance: Bool[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(False))
+    # the leg odometry's velocity bias (jaxquad.slam.leg_bias): prior std per base axis, forward and sideways (m/s; 0:
+    # that axis not estimated), its random walk (m/s per sqrt(s)) and the chi-square gate (2 dof) of the matches
+    lo_bias_std: Float[Array, "2"] = eqx.field(default_factory=lambda: _f([0.0, 0.0]))
+    lo_bias_walk: Float[Array, ""] = eqx.field(default_factory=lambda: _f(1e-4))
+    lo_bias_gate: Float[Array, ""] = eqx.field(default_factory=lambda: _f(9.21))
 
 
 class SlamInputs(eqx.Module):
@@ -109,6 +115,8 @@ class SlamState(eqx.Module):
     lo_prev: Float[Array, "3"]  # leg-odometry pose at the previous scan
     t_prev: Float[Array, ""]
     lo_ok: Bool[Array, ""]  # leg odometry valid at every scan since the last node
+    lo_bias_jac: Float[Array, "2 2"]  # s: the leg edge's sensitivity to the velocity bias since the last node
+    lo_bias: BiasFilter  # position and leg-odometry velocity bias (jaxquad.slam.leg_bias)
     grid: OccupancyGrid
     map_stale: Bool[Array, ""]  # poses moved since the map was drawn
     loops: Int[Array, ""]  # accepted loop closures
@@ -168,6 +176,8 @@ def init(spec: SlamSpec, params: SlamParams, bearings: Float[Array, " b"]) -> Sl
         lo_prev=jnp.zeros(3),
         t_prev=zero_f,
         lo_ok=jnp.asarray(False),
+        lo_bias_jac=jnp.zeros((2, 2)),
+        lo_bias=bias_filter_init(jnp.zeros(2), params.lo_bias_std),
         grid=init_grid(spec.grid),
         map_stale=jnp.asarray(False),
         loops=zero_i,
