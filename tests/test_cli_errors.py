@@ -286,6 +286,7 @@ CASES = {
         ("explore --out {new} --map-hit-offset-cells 1.5", ["--map-hit-offset-cells", "[0, 1]"]),
         ("explore --out {new} --revisit-after -1", ["--revisit-after"]),
         ("explore --out {new} --revisit-after inf", ["--revisit-after"]),
+        ("explore --out {new} --leg-bias-sideways -0.01", ["--leg-bias-sideways"]),
         ("explore --out {new} --band-height 0", ["--band-height"]),
         ("explore --out {new} --band-reduce mean", ["--band-reduce"]),
         ("explore --out {new} --slam-params {bad_yaml}", ["bad.yaml", "bandwidth"]),

@@ -69,6 +69,7 @@ def test_traces_round_trip_and_bad_files(tmp_path):
     extra |= dict(revisits=np.array([0, 2, 1]), revisits_closed=np.array([0, 1, 1]), revisiting=d["error"] > 0.2)
     extra["viewing"] = d["error"] > 0.3
     extra |= dict(loop_closed=np.zeros(d["error"].shape, bool), loop_chi2=np.full(d["error"].shape, np.nan))
+    extra["lo_bias"] = np.array([[0.0, -0.0025], [0.0, 0.0004], [0.0, 0.0]])
     maps = np.random.default_rng(1).integers(-1, 101, (3, 4, 5)).astype(np.int8)
     truth = SimpleNamespace(grid=maps[0], origin=(-1.0, -2.0, 0.0), resolution=0.05)
     extra |= dict(maps=maps, reachable=maps[1] < 20, clear=maps[2] < 20, truth=truth)
@@ -81,6 +82,7 @@ def test_traces_round_trip_and_bad_files(tmp_path):
     np.testing.assert_array_equal(back["revisiting"], d["error"] > 0.2)
     np.testing.assert_array_equal(back["viewing"], d["error"] > 0.3)
     np.testing.assert_array_equal(back["revisits"], [0, 2, 1])
+    np.testing.assert_array_equal(back["lo_bias"], extra["lo_bias"])
     np.testing.assert_array_equal(back["maps"], maps)
     np.testing.assert_array_equal(back["true_map"], maps[0])
     assert back["reachable"].dtype == bool and np.array_equal(back["clear"], maps[2] < 20)
@@ -152,6 +154,7 @@ def test_thinned_traces_keep_the_series_at_the_kept_ticks_and_every_map(tmp_path
     extra["viewing"] = d["error"] < 0
     extra |= dict(loop_closed=np.zeros(d["error"].shape, bool), loop_chi2=np.full(d["error"].shape, np.nan))
     extra |= dict(starts=np.zeros((3, 3)), goal=d["pose"] + 1.0, mode=np.full(d["error"].shape, 2, np.int8))
+    extra["lo_bias"] = np.zeros((3, 2))
     maps = np.random.default_rng(2).integers(-1, 101, (3, 4, 5)).astype(np.int8)
     truth = SimpleNamespace(grid=maps[0], origin=(0.0, 0.0, 0.0), resolution=0.05)
     extra |= dict(maps=maps, reachable=maps[1] < 20, clear=maps[2] < 20, truth=truth)
@@ -186,6 +189,7 @@ def test_loop_candidates_kept_at_every_tick_and_the_closures_that_jumped(tmp_pat
     extra |= dict(revisits=np.zeros(3, int), revisits_closed=np.zeros(3, int), revisiting=d["error"] < 0)
     extra["viewing"] = d["error"] < 0
     extra |= dict(starts=np.zeros((3, 3)), goal=d["pose"], mode=np.zeros(d["error"].shape, np.int8))
+    extra["lo_bias"] = np.zeros((3, 2))
     maps = np.zeros((3, 4, 5), np.int8)
     truth = SimpleNamespace(grid=maps[0], origin=(0.0, 0.0, 0.0), resolution=0.05)
     extra |= dict(maps=maps, reachable=maps[1] < 20, clear=maps[2] < 20, truth=truth)

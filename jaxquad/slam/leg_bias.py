@@ -57,10 +57,9 @@ def node_update(
     dt: Float[Array, ""],
     first: Bool[Array, ""],
 ) -> BiasFilter:
-    """The filter at a new node placed at `pose`: predicted by the leg edge `z_leg` (bias taken out: `correct_edge`;
-    from `x_last`, over dt s),
-    updated by the scan match `matched` (base pose, covariance `cov_match` in its own frame) when `good`. Without a
-    leg edge its position restarts at the node; at the first node it starts there."""
+    """The filter at a new node placed at `pose`: predicted by the leg edge `z_leg` from `x_last` over dt s (the bias
+    taken out by `correct_edge`), updated by the scan match `matched` (base pose, covariance `cov_match` in its own
+    frame) when `good`. Without a leg edge its position restarts at the node; at the first node it starts there."""
     f, H = state.lo_bias, state.lo_bias_jac
     R = R2(x_last[2])
     on = params.lo_bias_std > 0
