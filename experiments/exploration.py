@@ -55,7 +55,7 @@ def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     settings["view_goals"] = args.view_goals == "on"
     settings["leg_bias_sideways"] = leg_bias_sideways(robot, args.leg_bias_sideways)  # the value the robot runs with
     if variant != "full":  # the baseline never takes wall-heading priors, marks low obstacles or seeks views
-        settings |= {"wall_heading": "off", "low_obstacles": False, "view_goals": False}
+        settings |= {"wall_heading": "off", "low_obstacles": False, "view_goals": False, "leg_bias_sideways": 0.0}
     return settings
 
 

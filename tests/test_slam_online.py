@@ -216,16 +216,23 @@ def test_fleet_equals_single_robots():
 
 def test_leg_odometry_bias_learned_and_taken_out():
     """Leg odometry that reads 3 cm/s too far to the left of the base at every step (exact otherwise): with the bias
-    estimated (`lo_bias_std`) the SLAM learns most of it from the matches and its online poses err less; with the
-    default (0) nothing is estimated."""
+    estimated (`lo_bias_std`, both axes or the sideways one) the SLAM learns most of it from the matches and its online
+    poses err less."""
     b = 0.03
     lo = _integrate(LOOP[0], _relative(LOOP[:-1], LOOP[1:]) + [0.0, b * DT, 0.0])
     x = _inputs(LOOP, lo, lo, LOOP_RANGES)
     _, out_off, online_off = run_fleet(_spec("preintegrated"), SlamParams(), x)
-    _, out_on, online_on = run_fleet(_spec("preintegrated"), SlamParams(lo_bias_std=jnp.full(2, 0.05, jnp.float32)), x)
+    both = SlamParams(lo_bias_std=jnp.full(2, 0.05, jnp.float32))
+    _, out_on, online_on = run_fleet(_spec("preintegrated"), both, x)
     np.testing.assert_array_equal(online_off.lo_bias.x[0, 2:], 0.0)
     bias = online_on.lo_bias.x[0, 2:]
     assert 0.5 * b < bias[1] < 1.5 * b and abs(bias[0]) < 0.3 * b, bias
+    # The sideways axis alone (exploration's setting for the Badger): the forward bias stays exactly 0.
+    sideways = SlamParams(lo_bias_std=jnp.asarray([0.0, 0.05], jnp.float32))
+    _, out_side, online_side = run_fleet(_spec("preintegrated"), sideways, x)
+    bias = online_side.lo_bias.x[0, 2:]
+    assert bias[0] == 0.0 and 0.5 * b < bias[1] < 1.5 * b, bias
+    assert _ate(out_side.pose[0], LOOP) < 0.7 * _ate(out_off.pose[0], LOOP)
     assert _ate(out_on.pose[0], LOOP) < 0.7 * _ate(out_off.pose[0], LOOP)
 
 
@@ -404,6 +411,7 @@ def test_params_file_checks(tmp_path):
     assert load_params()["leg_bias_std_sideways"] == 0.0 == load_params()["leg_bias_std_forward"]
     assert ExploreConfig(robot="badger").slam_values()["leg_bias_std_sideways"] == 0.01
     assert ExploreConfig(robot="go2").slam_values()["leg_bias_std_sideways"] == 0.0
+    assert ExploreConfig(robot="badger", variant="baseline").slam_values()["leg_bias_std_sideways"] == 0.0
     assert ExploreConfig(robot="badger", leg_bias_sideways=0.0).slam_values()["leg_bias_std_sideways"] == 0.0
     bias_values = ExploreConfig(leg_bias_sideways=0.02).slam_values() | {"occupancy_clear_range": 0.0}
     sideways = slam_config(bias_values, GRID, "preintegrated")[1].lo_bias_std

@@ -40,11 +40,9 @@ from jaxquad.nav.fleet_loop import compile_chunk, keep_first, loop_functions, pl
 VARIANTS = {"full": ("leg", "stabilized", "preintegrated"), "baseline": ("visual", "baseline", "off")}
 TRACED = ("true_pose", "pose", "goal", "mode")  # outputs kept for the first `trace_robots` robots only
 SCAN_RANGE = 8.0  # m, the scans' range limit (the depth camera's); scan matching reads up to match_max_range
-# m/s: each robot's prior std of its leg odometry's sideways velocity bias, which the full variant's SLAM estimates
-# from its scan matches (`jaxquad.slam.leg_bias`) unless `ExploreConfig.leg_bias_sideways` says otherwise. The
-# Badger's leg odometry drifts sideways 2.5-3.5 mm/s at exploration's pace (its spine's swing): 100 runs in the
-# warehouse, 240 s, H200: lost 19 -> 6, SLAM position error at 4 min 0.258 -> 0.216 m (median). The Go2's drifts
-# 0.1-0.5 mm/s, below the estimate's own spread (about +-2 mm/s): not estimated (README, exploration).
+# m/s: prior std of each robot's leg-odometry sideways bias, which the full variant's SLAM estimates from its matches
+# (`jaxquad.slam.leg_bias`). The Badger's drifts 2.5-3.5 mm/s at exploration's pace: 100 warehouse runs, 240 s,
+# lost 19 -> 6. The Go2's (0.1-0.5 mm/s) lies under the estimate's spread: not estimated (README, exploration).
 LEG_BIAS_SIDEWAYS = {"badger": 0.01}
 
 
@@ -174,7 +172,8 @@ class ExploreConfig:
             "occupancy_clear_range": min(self.map_clear_range, SCAN_RANGE),
             "occupancy_miss_probability": self.map_miss_probability,
             "wall_heading": int(self.wall_heading and self.variant == "full"),
-            "leg_bias_std_sideways": leg_bias_sideways(self.robot, self.leg_bias_sideways),
+            # the baseline's SLAM has no leg edges to correct
+            "leg_bias_std_sideways": leg_bias_sideways(self.robot, self.leg_bias_sideways) * (self.variant == "full"),
         }
 
 

@@ -38,10 +38,12 @@ def accumulate(state: SlamState, inp: SlamInputs, dt: Float[Array, ""], ok: Bool
 def correct_edge(
     state: SlamState, z: Float[Array, "3"], cov: Float[Array, "3 3"]
 ) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
-    """The leg edge (measurement, covariance) since the last node with the estimated bias taken out."""
+    """The leg edge (measurement, covariance) since the last node with the estimated bias taken out. The bias term
+    H b lies in the last node's frame; the edge's covariance is the new node's right perturbation (R(dtheta)^T)."""
     H, f = state.lo_bias_jac, state.lo_bias
-    z = z.at[:2].add(-H @ f.bias)
-    return z, cov.at[:2, :2].add(H @ f.P[2:, 2:] @ H.T)
+    Rz = R2(z[2])
+    HPH = H @ f.P[2:, 2:] @ H.T
+    return z.at[:2].add(-H @ f.bias), cov.at[:2, :2].add(Rz.T @ HPH @ Rz)
 
 
 def node_update(
@@ -65,7 +67,8 @@ def node_update(
     on = params.lo_bias_std > 0
     walk = jnp.where(on, params.lo_bias_walk**2 * jnp.clip(dt, 0.0), 0.0)  # per axis: none where not estimated
     raw = z_leg[:2] + H @ f.bias
-    moved = bias_predict(f, R @ raw, R @ H, R @ state.lo_cov[:2, :2] @ R.T, walk)
+    R_new = R2(x_last[2] + z_leg[2])  # lo_cov: the new node's right perturbation
+    moved = bias_predict(f, R @ raw, R @ H, R_new @ state.lo_cov[:2, :2] @ R_new.T, walk)
     restart_var = jnp.where(first, 0.0, _LOST_POSITION_VAR)
     P_restart = jnp.zeros((4, 4)).at[2:, 2:].set(f.P[2:, 2:]).at[:2, :2].set(restart_var * jnp.eye(2))
     restarted = BiasFilter(x=jnp.concatenate([pose[:2], f.bias]), P=P_restart)
