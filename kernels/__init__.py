@@ -83,15 +83,12 @@ from jaxquad.kernels.wall_heading import (
 )
 
 __all__ = [
-    "BiasFilter",
-    "bias_filter_init",
-    "bias_predict",
-    "bias_update",
     "Alignment",
     "AmclInputs",
     "AmclOutput",
     "AmclParams",
     "AmclState",
+    "BiasFilter",
     "Boxes",
     "CameraIntrinsics",
     "Clusters",
@@ -137,6 +134,9 @@ __all__ = [
     "amcl_init",
     "amcl_step",
     "baseline_scan",
+    "bias_filter_init",
+    "bias_predict",
+    "bias_update",
     "body_twist",
     "cast_depth",
     "cells_for_range",

@@ -109,12 +109,10 @@ def check_loop_arguments(args: argparse.Namespace) -> None:
         ("--revisit-after", args.revisit_after),
         ("--footprint-padding", args.footprint_padding),
         ("--map-clear-range", args.map_clear_range),
+        ("--leg-bias-sideways", args.leg_bias_sideways),  # None: the robot's default
     ):
-        if not (math.isfinite(value) and value >= 0):
+        if value is not None and not (math.isfinite(value) and value >= 0):
             raise ValueError(f"{option} must be a finite number >= 0, got {value}")
-    bias = args.leg_bias_sideways
-    if bias is not None and not (math.isfinite(bias) and bias >= 0):
-        raise ValueError(f"--leg-bias-sideways must be a finite number >= 0, got {bias}")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
