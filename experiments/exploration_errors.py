@@ -19,8 +19,11 @@ then, whether the run was walking to a view goal and its SLAM error, and `collis
 the loop candidates in the traces (`exploration.py`'s `loop_events`), per lost run the accepted closure that changed
 its SLAM error most, the last accepted closure that carried its error from under `LOST_M` (the loop's lost limit) to
 `LOST_M` or more, and how many of its candidates were refused; and `loops`: how many candidates were accepted and
-refused, the accepted ones that moved a run's error by more than `JUMP_M` (their count, runs, and chi-squares), and
-how many lost runs a closure carried across `LOST_M` (`lost_across_by_closure`); with the final maps in the
+refused, the accepted ones that moved a run's error by more than `JUMP_M` (their count, runs, and chi-squares), per
+band of chi-square (`CHI2_BANDS`) the accepted closures that raised and lowered a run's error by more than `MOVED_M`,
+their mean change and how many carried an error across `LOST_M` (`by_chi2`: which closures a stricter
+`loop_consistency_chi2` would have refused, and what they did), and how many lost runs a closure carried across
+`LOST_M` (`lost_across_by_closure`); with the final maps in the
 traces (`exploration.py --traces` keeps them since `6a3bdcf`), their scores against the true map per outcome
 (`jaxquad.metrics.map_scores`: IoU median and 10-90 %, precision and recall medians) and, over the runs that ended
 `explored`, the correlation of the map IoU with the run's median SLAM position error.
@@ -38,6 +41,9 @@ import numpy as np
 
 JUMP_M = 0.3  # m: an accepted closure that moves the SLAM position error by more than this
 LOST_M = 0.5  # m: the exploration loop's `lost_error` (jaxquad.explore.fleet)
+MOVED_M = 0.05  # m: a closure that raises or lowers the SLAM position error by more than this moved it
+# the accepted closures' chi-square bands (3 dof: the 50, 90, 95 and 99 % points); the last runs to the gate (16.27)
+CHI2_BANDS = (0.0, 2.37, 6.25, 7.81, 11.34)
 # deg: a lost run's final heading error from which the heading counts as its cause: walls seen at the 4 m map range
 # then land 0.2 m astray, beyond what scan matching against the run's own map pulls back.
 HEADING_DEG = 3.0
@@ -191,15 +197,16 @@ def _largest_closure(d: dict, run: int) -> dict | None:
     return _candidate(d, k)
 
 
+def _across_lost(d: dict) -> np.ndarray:
+    """The candidates that were accepted and carried their run's SLAM position error from under `LOST_M` to more."""
+    before, after = d["loop_error_before_m"], d["loop_error_after_m"]
+    return d["loop_accepted"].astype(bool) & (before < LOST_M) & (after >= LOST_M)
+
+
 def _closure_across_lost(d: dict, run: int) -> dict | None:
     """The run's last accepted closure that carried its SLAM position error from under `LOST_M` to `LOST_M` or more
     (None where none did)."""
-    k = np.flatnonzero(
-        (d["loop_run"] == run)
-        & d["loop_accepted"].astype(bool)
-        & (d["loop_error_before_m"] < LOST_M)
-        & (d["loop_error_after_m"] >= LOST_M)
-    )
+    k = np.flatnonzero((d["loop_run"] == run) & _across_lost(d))
     if not k.size:
         return None
     k = k[np.argmax(d["loop_t"][k])]
@@ -220,7 +227,31 @@ def loop_summary(d: dict) -> dict:
         "jump_runs": sorted({int(r) for r in d["loop_run"][jump]}),
         "jump_chi2": _percentiles(chi2, [0, 50, 100]),
         "accepted_chi2": _percentiles(d["loop_chi2"][accepted & ~jump], [50, 90]),
+        "by_chi2": chi2_bands(d),
     }
+
+
+def chi2_bands(d: dict) -> list[dict]:
+    """Per band of `CHI2_BANDS` (from its lower edge, up to the next), the accepted closures: how many, in how many
+    runs, how many raised and lowered their run's SLAM position error by more than `MOVED_M`, the mean change (m; the
+    closures whose error after is not traced left out) and how many carried an error across `LOST_M`."""
+    accepted, across = d["loop_accepted"].astype(bool), _across_lost(d)
+    change = _closure_change(d)
+    bands = []
+    for lo, hi in zip(CHI2_BANDS, CHI2_BANDS[1:] + (np.inf,)):
+        k = accepted & (d["loop_chi2"] >= lo) & (d["loop_chi2"] < hi)
+        moved = change[k][np.isfinite(change[k])]
+        bands.append({
+            "chi2_from": lo,
+            "chi2_to": None if np.isinf(hi) else hi,
+            "accepted": int(k.sum()),
+            "runs": len(set(d["loop_run"][k].tolist())),
+            "raised": int(np.sum(moved > MOVED_M)),
+            "lowered": int(np.sum(moved < -MOVED_M)),
+            "mean_change_m": float(moved.mean()) if moved.size else None,
+            "carried_across_lost": int(np.sum(across & k)),
+        })  # fmt: skip
+    return bands
 
 
 def _percentiles(x: np.ndarray, q: list[float]) -> list[float | None]:

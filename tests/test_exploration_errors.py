@@ -6,6 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from _experiments import load
+from scipy.stats import chi2 as chi2_distribution
 from scipy.stats import norm
 
 from jaxquad.explore import OUTCOMES
@@ -234,6 +235,33 @@ def test_the_closure_that_carried_a_lost_runs_error_across_the_limit():
              loop_error_after_m=after)  # fmt: skip
     assert errors._closure_across_lost(d, 0) == {"t_s": 30.0, "chi2": 5.0, "error_before_m": 0.4, "error_after_m": 0.6}
     assert errors._closure_across_lost(d, 1)["t_s"] == 40.0 and errors._closure_across_lost(d, 2) is None
+
+
+def test_accepted_closures_by_chi_square_band():
+    """Each accepted closure counted in the band its chi-square falls in (lower edge included), as raising or lowering
+    its run's error by more than 5 cm or neither; refused candidates and untraced errors after left out."""
+    events = [  # (run, chi2, accepted, before, after)
+        (0, 0.5, True, 0.10, 0.02),  # [0, 2.37): lowered
+        (1, 2.37, True, 0.10, 0.12),  # [2.37, 6.25), on its lower edge: moved 2 cm, neither
+        (1, 5.0, True, 0.10, 0.30),  # [2.37, 6.25): raised
+        (2, 5.0, False, 0.10, 0.90),  # refused: not counted
+        (2, 9.0, True, 0.45, 0.60),  # [7.81, 11.34): raised, and across 0.5 m
+        (0, 16.0, True, 0.20, np.nan),  # [11.34, gate): counted, its change unknown
+    ]
+    run, chi2, accepted, before, after = (np.array(c) for c in zip(*events))
+    d = dict(loop_run=run, loop_chi2=chi2, loop_accepted=accepted, loop_error_before_m=before,
+             loop_error_after_m=after)  # fmt: skip
+    bands = errors.chi2_bands(d)
+    assert [(b["chi2_from"], b["chi2_to"]) for b in bands] == [
+        (0.0, 2.37), (2.37, 6.25), (6.25, 7.81), (7.81, 11.34), (11.34, None)
+    ]  # fmt: skip
+    rows = [(b["accepted"], b["runs"], b["raised"], b["lowered"], b["carried_across_lost"]) for b in bands]
+    assert rows == [(1, 1, 0, 1, 0), (2, 1, 1, 0, 0), (0, 0, 0, 0, 0), (1, 1, 1, 0, 1), (1, 1, 0, 0, 0)]
+    means = [b["mean_change_m"] for b in bands]
+    assert means[0] == pytest.approx(-0.08) and means[1] == pytest.approx(0.11) and means[3] == pytest.approx(0.15)
+    assert means[2] is None and means[4] is None
+    # the bands' edges are the chi-square distribution's points for 3 degrees of freedom
+    np.testing.assert_allclose(errors.CHI2_BANDS[1:], chi2_distribution.ppf([0.5, 0.9, 0.95, 0.99], 3), atol=0.005)
 
 
 @pytest.mark.parametrize(
