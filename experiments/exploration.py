@@ -42,7 +42,7 @@ GOAL = 0.95  # coverage a run should reach
 
 def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     """What a cell's row depends on: a finished row in --checkpoint is reused only for the same settings."""
-    from jaxquad.explore.fleet import leg_bias_sideways
+    from jaxquad.explore.config import leg_bias_sideways
     from jaxquad.slam import load_params
 
     keep = ("runs", "seconds", "seed", "samples", "horizon", "every", "band_height", "band_reduce")

@@ -88,7 +88,7 @@ def errors_deg(x: dict, truths: np.ndarray, every: float, skip: float) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from jaxquad.explore.fleet import ExploreConfig
+    from jaxquad.explore.config import ExploreConfig
     from jaxquad.kernels.wall_heading import (
         direction_spectrum,
         halves_disagreement,
@@ -186,7 +186,7 @@ def main(argv=None) -> None:
         p.error(f"--json {args.json}: its folder is not writable")
     import jax
 
-    from jaxquad.explore.fleet import ExploreConfig
+    from jaxquad.explore.config import ExploreConfig
 
     print(f"command: python {shlex.join(['experiments/heading_association.py', *(argv or sys.argv[1:])])}")
     machine = platform.processor() or platform.machine()

@@ -178,7 +178,7 @@ def score(variant: str, state, out, x: dict, truths: np.ndarray, wall_s: float) 
 
 def run(args) -> list[dict]:
     from jaxquad.cli import progress_bar
-    from jaxquad.explore.fleet import ExploreConfig
+    from jaxquad.explore.config import ExploreConfig
     from jaxquad.slam import grid_spec, map_max_range, run_fleet, slam_config
 
     x, truths = inputs(args.robots, args.seconds, args.seed, args.scan_height)

@@ -378,7 +378,7 @@ def test_params_file_checks(tmp_path):
     assert laser["occupancy_hit_offset_cells"] == 0.0  # slam_toolbox's for 2D lidars
     # Exploration's own offset replaces the file's, whatever the file holds.
     from jaxquad.explore import ExploreConfig
-    from jaxquad.explore.fleet import SCAN_RANGE
+    from jaxquad.explore.config import SCAN_RANGE
     from jaxquad.slam import map_max_range
 
     assert ExploreConfig().slam_values()["occupancy_hit_offset_cells"] == 1.0  # exploration's default: a whole cell

@@ -235,7 +235,7 @@ def test_settings_of_the_slam_file_and_of_exploration(tmp_path):
     import pytest
 
     from jaxquad.explore.cli import add_loop_arguments
-    from jaxquad.explore.fleet import ExploreConfig
+    from jaxquad.explore.config import ExploreConfig
     from jaxquad.slam import grid_spec, load_params, slam_config
 
     bad = tmp_path / "bad.yaml"

@@ -1,7 +1,8 @@
 """Autonomous frontier exploration in the closed loop: online SLAM, frontier goals, the planner and MPPI
 driving simulated robots through unknown worlds (`explore`), its summary and pictures (`report`)."""
 
-from jaxquad.explore.fleet import VARIANTS, ExploreConfig, ExploreResult, explore
+from jaxquad.explore.config import VARIANTS, ExploreConfig, ExploreResult
+from jaxquad.explore.fleet import explore
 from jaxquad.explore.loop import (
     OUTCOMES,
     ExploreFunctions,

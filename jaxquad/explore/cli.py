@@ -23,7 +23,7 @@ from jaxquad.explore.report import SUMMARY_KIND
 def add_loop_arguments(parser: argparse.ArgumentParser) -> None:
     """The loop's options that `jaxquad explore` and `experiments/exploration.py` share (`ExploreConfig`'s fields,
     whose defaults they show); `check_loop_arguments` checks them."""
-    from jaxquad.explore.fleet import ExploreConfig
+    from jaxquad.explore.config import ExploreConfig
 
     c = ExploreConfig
     parser.add_argument(
@@ -117,7 +117,7 @@ def check_loop_arguments(args: argparse.Namespace) -> None:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from jaxquad.cli import add_band_reduce_argument, add_devices_argument
-    from jaxquad.explore.fleet import VARIANTS
+    from jaxquad.explore.config import VARIANTS
 
     parser.add_argument("--robot", default="go2", choices=["go2", "badger"], help="robot model (default go2)")
     parser.add_argument("--world", default="house", choices=["house", "warehouse"], help="world kind (default house)")
@@ -182,7 +182,8 @@ def run(args: argparse.Namespace) -> int:
 
     from jaxquad.cli import progress_bar
     from jaxquad.explore.checkpoint import Paused
-    from jaxquad.explore.fleet import REPLAN_TICKS, ExploreConfig, explore
+    from jaxquad.explore.config import ExploreConfig
+    from jaxquad.explore.fleet import REPLAN_TICKS, explore
     from jaxquad.explore.report import plot_coverage, plot_maps, summarize
     from jaxquad.io.atomic import atomic_dir, check_output_dir, check_output_file
     from jaxquad.io.jsonfile import to_json, write_json

@@ -1,4 +1,4 @@
-"""The summary and the pictures of an exploration run (`jaxquad.explore.fleet.ExploreResult`).
+"""The summary and the pictures of an exploration run (`jaxquad.explore.config.ExploreResult`).
 
 summary (JSON-ready dict): the configuration, loop and SLAM parameters used; `coverage` (each robot's final map:
 known-free cells among the true reachable free cells, over those cells; per robot and mean); `coverage_clear` (the

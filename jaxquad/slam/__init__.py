@@ -12,8 +12,16 @@ from jaxquad.kernels.occupancy import (
 )
 from jaxquad.kernels.posegraph import PoseGraph, SolveInfo, SolverParams, chi2, edge_error, optimize
 from jaxquad.slam.graph import build_graph, stack_graphs
-from jaxquad.slam.mapping import fleet_maps, grid_spec, grid_spec_like, to_occupancy_map
-from jaxquad.slam.online import finish, refresh_map, scan_map, scan_poses, step
+from jaxquad.slam.mapping import (
+    fleet_maps,
+    grid_spec,
+    grid_spec_like,
+    refresh_map,
+    scan_map,
+    scan_poses,
+    to_occupancy_map,
+)
+from jaxquad.slam.online import finish, step
 from jaxquad.slam.params import load_params, map_max_range, slam_config
 from jaxquad.slam.run import final_poses, laser_log_inputs, map_grid, redraw_maps, run_fleet
 from jaxquad.slam.solve import g2o_pose_graph, optimize_g2o

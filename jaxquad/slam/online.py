@@ -63,13 +63,13 @@ from jaxtyping import Array, Bool, Float, Int
 from jaxquad.kernels.control_flow import run_if
 from jaxquad.kernels.lie import se2, xy_theta
 from jaxquad.kernels.loop_closure import find_loop_closure
-from jaxquad.kernels.occupancy import OccupancyGrid, init_grid, insert_scan, map_from_scans
 from jaxquad.kernels.posegraph import ROBUST_CAUCHY, ROBUST_NONE, PoseGraph, optimize
 from jaxquad.kernels.scan_grid import likelihood_grid, world_points
 from jaxquad.kernels.scan_match import match_scan
 from jaxquad.slam import heading as wall_heading
 from jaxquad.slam import leg_bias
 from jaxquad.slam.consistency import loop_chi2
+from jaxquad.slam.mapping import _compose, _insert, _sensor, refresh_map
 from jaxquad.slam.state import (
     EDGE_HEADING,
     EDGE_LEG,
@@ -84,20 +84,12 @@ from jaxquad.slam.state import (
 )
 
 
-def _sensor(params: SlamParams, base: Float[Array, "*n 3"]) -> Float[Array, "*n 3"]:
-    return xy_theta(se2(base) @ se2(params.T_base_laser))
-
-
 def _base(params: SlamParams, sensor: Float[Array, "3"]) -> Float[Array, "3"]:
     return xy_theta(se2(sensor) @ se2(params.T_base_laser).inverse())
 
 
 def _between(a: Float[Array, "3"], b: Float[Array, "3"]) -> Float[Array, "3"]:
     return xy_theta(se2(a).inverse() @ se2(b))
-
-
-def _compose(a: Float[Array, "3"], d: Float[Array, "3"]) -> Float[Array, "3"]:
-    return xy_theta(se2(a) @ se2(d))
 
 
 def _rotate_cov(theta: Float[Array, ""], cov_world: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
@@ -268,11 +260,6 @@ def _add_node(spec: SlamSpec, params: SlamParams, state: SlamState, pred, inp: S
     return *_close_loop(spec, params, state, j, jnp.where(first, jnp.nan, response)), heading_error
 
 
-def _insert(spec: SlamSpec, params: SlamParams, grid: OccupancyGrid, base, ranges, valid, bearings) -> OccupancyGrid:
-    r = jnp.where(valid, ranges, jnp.nan)  # NaN rays are ignored by the map
-    return insert_scan(spec.grid, params.occupancy, grid, _sensor(params, base), r, bearings)
-
-
 def _close_loop(spec: SlamSpec, params: SlamParams, state: SlamState, j, response):
     g = state.graph
     cand = find_loop_closure(
@@ -297,23 +284,6 @@ def _close_loop(spec: SlamSpec, params: SlamParams, state: SlamState, j, respons
     if spec.lo_constraints == "preintegrated":
         state = leg_bias.reanchor(state, j, accept)
     return state, response, accept, jnp.where(accept, cand.i, -1), jnp.where(cand.accept, chi2, jnp.nan)
-
-
-def refresh_map(spec: SlamSpec, params: SlamParams, state: SlamState) -> SlamState:
-    """The map redrawn from every node's scan at its current pose when `map_stale` (else unchanged).
-
-    The redraw loops over nodes with a trip count of 0 when the map is current, so under `vmap` it
-    costs nothing unless some robot's map is stale."""
-    count = jnp.where(state.map_stale, state.n_nodes, 0)
-    g = state.graph
-
-    def body(carry):
-        k, grid = carry
-        return k + 1, _insert(spec, params, grid, g.poses[k], state.ranges[k], state.valid[k], state.bearings)
-
-    _, grid = jax.lax.while_loop(lambda c: c[0] < count, body, (jnp.asarray(0, jnp.int32), init_grid(spec.grid)))
-    grid = jax.tree.map(lambda new, old: jnp.where(state.map_stale, new, old), grid, state.grid)
-    return eqx.tree_at(lambda s: (s.grid, s.map_stale), state, (grid, jnp.asarray(False)))
 
 
 def _accumulate_lo(params: SlamParams, state: SlamState, inp: SlamInputs) -> SlamState:
@@ -398,24 +368,3 @@ def finish(spec: SlamSpec, params: SlamParams, state: SlamState) -> SlamState:
     graph, _ = optimize(state.graph, params.solver)
     state = eqx.tree_at(lambda s: (s.graph, s.map_stale), state, (graph, jnp.asarray(True)))
     return refresh_map(spec, params, state)
-
-
-def scan_poses(state: SlamState, out: SlamOutput) -> Float[Array, "s 3"]:
-    """Every scan's base pose at the state's node poses: its node's pose composed with the scan's
-    odometry offset (NaN before the first node). `out` holds the scans' outputs (leading axis S)."""
-    node = jnp.maximum(out.node, 0)
-    poses = jax.vmap(_compose)(state.graph.poses[node], out.T_node_scan)
-    return jnp.where((out.node >= 0)[:, None], poses, jnp.nan)
-
-
-def scan_map(
-    spec: SlamSpec, params: SlamParams, state: SlamState, out: SlamOutput, ranges: Float[Array, "s b"]
-) -> SlamState:
-    """The state with its map drawn from every scan, not only the nodes', each at its `scan_poses` pose
-    (scans before the first node left out; NaN rays ignored): the scans between nodes see the same walls
-    from other places, evidence that a map of the node scans alone leaves out."""
-    base = scan_poses(state, out)
-    ok = jnp.all(jnp.isfinite(base), axis=1)
-    sensor = _sensor(params, jnp.where(ok[:, None], base, 0.0))
-    grid = map_from_scans(spec.grid, params.occupancy, sensor, ranges, state.bearings, ok)
-    return eqx.tree_at(lambda s: s.grid, state, grid)

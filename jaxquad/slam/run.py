@@ -23,7 +23,7 @@ from jaxquad.io.carmen import LaserLog, repeated_stamps, scan_clock, untie_stamp
 from jaxquad.kernels.occupancy import GridSpec
 from jaxquad.slam import online
 from jaxquad.slam import state as slam_state
-from jaxquad.slam.mapping import grid_spec
+from jaxquad.slam.mapping import grid_spec, scan_map, scan_poses
 
 # Scans per jitted call: long enough to amortize dispatch, short enough for a live progress bar.
 CHUNK = 64
@@ -160,19 +160,19 @@ def run_fleet(spec: online.SlamSpec, params: online.SlamParams, x: dict, progres
     return first(final), out, first(online_states)
 
 
-_scan_poses = jax.jit(jax.vmap(online.scan_poses))
+_scan_poses = jax.jit(jax.vmap(scan_poses))
 
 
 @functools.cache
 def _scan_maps(spec: online.SlamSpec):
-    """The jitted fleet `online.scan_map`, returning only the grids (the rest of the state is the caller's)."""
-    grid = lambda params, state, out, ranges: online.scan_map(spec, params, state, out, ranges).grid  # noqa: E731
+    """The jitted fleet `mapping.scan_map`, returning only the grids (the rest of the state is the caller's)."""
+    grid = lambda params, state, out, ranges: scan_map(spec, params, state, out, ranges).grid  # noqa: E731
     return jax.jit(jax.vmap(grid, in_axes=(None, 0, 0, 0)))
 
 
 def redraw_maps(spec: online.SlamSpec, params: online.SlamParams, state, out, x: dict, robots_per_call: int = 64):
     """The final states (from `run_fleet`) with each robot's map drawn from every scan of `x` at its final pose
-    (`online.scan_map`), instead of from the node scans alone; `robots_per_call` robots' grids at a time."""
+    (`mapping.scan_map`), instead of from the node scans alone; `robots_per_call` robots' grids at a time."""
     ranges = np.where(np.asarray(x["valid"], bool)[..., None], x["ranges"], np.nan).astype(np.float32)
     n = ranges.shape[0]
     fn = _scan_maps(spec)
