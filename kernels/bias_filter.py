@@ -33,10 +33,11 @@ class BiasFilter(eqx.Module):
         return self.x[2:]
 
 
-def bias_filter_init(p: Float[Array, "2"], bias_std: Float[Array, "2"]) -> BiasFilter:
-    """A filter at position p, known exactly, with a zero bias of standard deviations bias_std (m/s, per axis)."""
+def bias_filter_init(p: Float[Array, "2"], bias_mean: Float[Array, "2"], bias_std: Float[Array, "2"]) -> BiasFilter:
+    """A filter at position p, known exactly, with a bias of mean bias_mean and standard deviations bias_std (m/s,
+    per axis; an axis of std 0 keeps its mean: a known bias)."""
     P = jnp.diag(jnp.concatenate([jnp.zeros(2), jnp.square(bias_std)]))
-    return BiasFilter(x=jnp.concatenate([p, jnp.zeros(2)]), P=P.astype(p.dtype))
+    return BiasFilter(x=jnp.concatenate([p, bias_mean.astype(p.dtype)]), P=P.astype(p.dtype))
 
 
 def bias_predict(

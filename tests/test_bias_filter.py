@@ -83,7 +83,7 @@ def test_bias_is_learned_from_matches_and_the_gate_drops_outliers():
     b_true = np.array([0.0, 0.005])
     theta = np.radians(30.0)
     R = np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
-    f = bias_filter_init(jnp.zeros(2, jnp.float32), jnp.full(2, 0.01, jnp.float32))
+    f = bias_filter_init(jnp.zeros(2, jnp.float32), jnp.zeros(2, jnp.float32), jnp.full(2, 0.01, jnp.float32))
     f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
     R_match, gate, yes = 1e-4 * jnp.eye(2), jnp.asarray(9.21), jnp.asarray(True)
     p_true = np.zeros(2)
@@ -101,3 +101,29 @@ def test_bias_is_learned_from_matches_and_the_gate_drops_outliers():
     assert not bool(used) and float(chi2) > 9.21
     np.testing.assert_allclose(float(chi2), y @ np.linalg.solve(S, y), rtol=1e-3)
     np.testing.assert_array_equal(bad.x, f.x)
+
+
+def test_a_known_bias_stays_and_a_prior_mean_is_where_learning_starts():
+    """A prior mean with std 0 is a known bias: predictions take it out and matches leave it as it is; with a std the
+    filter starts from the mean (the batch posterior's prior) and moves away from it as matches disagree."""
+    f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+    p0, mean = f32([1.0, 2.0]), f32([0.0, -0.004])
+    known = bias_filter_init(p0, mean, f32([0.0, 0.0]))
+    np.testing.assert_array_equal(known.x, np.float32([1.0, 2.0, 0.0, -0.004]))
+    np.testing.assert_array_equal(known.P, np.zeros((4, 4)))
+    G, d = f32(0.5 * np.eye(2)), f32([0.05, 0.0])
+    moved = bias_predict(known, d, G, f32(1e-6 * np.eye(2)), f32([0.0, 0.0]))
+    np.testing.assert_allclose(moved.x, [1.05, 2.002, 0.0, -0.004], atol=1e-7)  # p + d - G b
+    after, _, used = bias_update(moved, f32([1.05, 2.0]), f32(1e-4 * np.eye(2)), jnp.asarray(9.21), jnp.asarray(True))
+    assert bool(used) and float(after.x[3]) == float(mean[1]) and float(after.x[2]) == 0.0  # no variance: no gain on b
+    learning = bias_filter_init(p0, mean, f32([0.01, 0.01]))
+    x0, P0 = np.concatenate([p0, mean]), np.diag([0.0, 0.0, 1e-4, 1e-4]) + 1e-12 * np.eye(4)
+    steps = [(np.asarray(d), np.asarray(G), 1e-6 * np.eye(2), np.zeros((2, 2)) + 1e-12 * np.eye(2), m, 1e-4 * np.eye(2))
+             for m in (np.array([1.05, 2.0]), np.array([1.10, 2.0]))]  # fmt: skip
+    f = learning
+    for d_, G_, Q, walk, m, R in steps:
+        f = bias_predict(f, f32(d_), f32(G_), f32(Q), f32(np.diag(walk)))
+        f, _, _ = bias_update(f, f32(m), f32(R), jnp.asarray(1e9), jnp.asarray(True))
+    mean_ref, _ = _batch_posterior(x0, P0, steps)
+    np.testing.assert_allclose(f.x, mean_ref, rtol=1e-3, atol=2e-5)
+    assert float(f.x[3]) > -0.004  # the matches, which see no sideways drift, pull the bias towards 0

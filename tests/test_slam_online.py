@@ -234,6 +234,11 @@ def test_leg_odometry_bias_learned_and_taken_out():
     assert bias[0] == 0.0 and 0.5 * b < bias[1] < 1.5 * b, bias
     assert _ate(out_side.pose[0], LOOP) < 0.7 * _ate(out_off.pose[0], LOOP)
     assert _ate(out_on.pose[0], LOOP) < 0.7 * _ate(out_off.pose[0], LOOP)
+    # A known bias (a prior mean with std 0, a robot's calibration) is taken out of every leg edge as it is.
+    known = SlamParams(lo_bias_mean=jnp.asarray([0.0, b], jnp.float32), lo_bias_std=jnp.zeros(2, jnp.float32))
+    _, out_known, online_known = run_fleet(_spec("preintegrated"), known, x)
+    np.testing.assert_array_equal(online_known.lo_bias.x[0, 2:], np.float32([0.0, b]))
+    assert _ate(out_known.pose[0], LOOP) < 0.7 * _ate(out_side.pose[0], LOOP)
 
 
 def _small_params(tmp_path):
@@ -409,6 +414,14 @@ def test_params_file_checks(tmp_path):
     )
     # The sideways leg-odometry bias: estimated for the Badger by default, not for the Go2; an explicit value wins.
     assert load_params()["leg_bias_std_sideways"] == 0.0 == load_params()["leg_bias_std_forward"]
+    assert load_params()["leg_bias_mean_sideways"] == 0.0 == load_params()["leg_bias_mean_forward"]
+    signed = tmp_path / "signed.yaml"
+    signed.write_text("leg_bias_mean_sideways: -0.004\n")  # a mean may be negative, a std may not
+    np.testing.assert_allclose(slam_config(load_params(signed) | {"occupancy_clear_range": 0.0}, GRID,
+                                           "preintegrated")[1].lo_bias_mean, [0.0, -0.004])  # fmt: skip
+    signed.write_text("leg_bias_std_sideways: -0.004\n")
+    with pytest.raises(ValueError, match="leg_bias_std_sideways"):
+        load_params(signed)
     assert ExploreConfig(robot="badger").slam_values()["leg_bias_std_sideways"] == 0.01
     assert ExploreConfig(robot="go2").slam_values()["leg_bias_std_sideways"] == 0.0
     assert ExploreConfig(robot="badger", variant="baseline").slam_values()["leg_bias_std_sideways"] == 0.0

@@ -6,9 +6,10 @@ edge then carries that bias times its interval, and where the scan matches are w
 `kernels.bias_filter` tracks the position and the bias together: the leg displacement from node to node
 predicts, the node's scan match (against the running buffer, in the map frame) measures. Its bias estimate
 is subtracted from every later leg edge (H b, H = the integral of the base frame's rotation since the last
-node), whose covariance gains H P_b H^T. `SlamParams.lo_bias_std` is the bias's prior std per axis of the base
-frame (forward, sideways); an axis at 0 is not estimated (its bias stays 0), and both at 0 leave the edges exactly
-the uncorrected ones. Only the `preintegrated` constraints use it.
+node), whose covariance gains H P_b H^T. `SlamParams.lo_bias_mean` and `lo_bias_std` are the bias's prior mean
+and std per axis of the base frame (forward, sideways); an axis of std 0 is not estimated (its bias stays at its
+mean), and both at 0 with zero means leave the edges exactly the uncorrected ones. Only the `preintegrated`
+constraints use it.
 """
 
 from __future__ import annotations

@@ -59,10 +59,13 @@ _MAY_BE_ZERO = (
     "occupancy_hit_offset_cells",
     "occupancy_clear_range",
     "occupancy_clear_margin",
+    "leg_bias_mean_forward",
+    "leg_bias_mean_sideways",
     "leg_bias_std_forward",
     "leg_bias_std_sideways",
     "leg_bias_random_walk",
 )
+_SIGNED = ("leg_bias_mean_forward", "leg_bias_mean_sideways")
 
 
 def _read(path: Path) -> dict:
@@ -105,7 +108,7 @@ def load_params(path: str | os.PathLike | None = None, laser: bool = False) -> d
             if v != int(v):
                 raise ValueError(f"params file {source}: {key} must be an integer, got {v!r}")
             values[key] = int(v)
-        if v < 0 or (v == 0 and key not in _MAY_BE_ZERO) or (key in _FRACTION and v > 1):
+        if (v < 0 and key not in _SIGNED) or (v == 0 and key not in _MAY_BE_ZERO) or (key in _FRACTION and v > 1):
             raise ValueError(f"params file {source}: {key} = {v!r} is out of range")
     for key in _SWITCHES:
         if values[key] not in (0, 1):
@@ -226,6 +229,7 @@ def slam_config(values: dict, grid: GridSpec, lo_constraints: str, T_base_laser=
         heading_gate_with_r=jnp.asarray(v["wall_heading_gate_with_r"] == 1),
         loop_chain_priors=jnp.asarray(v["wall_heading_in_loop_test"] == 1),
         loop_graph_covariance=jnp.asarray(v["loop_consistency_graph"] == 1),
+        lo_bias_mean=f([v["leg_bias_mean_forward"], v["leg_bias_mean_sideways"]]),
         lo_bias_std=f([v["leg_bias_std_forward"], v["leg_bias_std_sideways"]]),
         lo_bias_walk=f(v["leg_bias_random_walk"]),
         lo_bias_gate=f(v["leg_bias_gate_chi2"]),

@@ -77,8 +77,10 @@ class SlamParams(eqx.Module):
     loop_chain_priors: Bool[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(True))
     # the loop test's covariance from the whole graph's information in place of the chain (jaxquad.slam.consistency)
     loop_graph_covariance: Bool[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(False))
-    # the leg odometry's velocity bias (jaxquad.slam.leg_bias): prior std per base axis, forward and sideways (m/s; 0:
-    # that axis not estimated), its random walk (m/s per sqrt(s)) and the chi-square gate (2 dof) of the matches
+    # the leg odometry's velocity bias (jaxquad.slam.leg_bias): prior mean and std per base axis, forward and sideways
+    # (m/s; std 0: that axis not estimated, its mean taken out as it is), its random walk (m/s per sqrt(s)) and the
+    # chi-square gate (2 dof) of the matches
+    lo_bias_mean: Float[Array, "2"] = eqx.field(default_factory=lambda: _f([0.0, 0.0]))
     lo_bias_std: Float[Array, "2"] = eqx.field(default_factory=lambda: _f([0.0, 0.0]))
     lo_bias_walk: Float[Array, ""] = eqx.field(default_factory=lambda: _f(1e-4))
     lo_bias_gate: Float[Array, ""] = eqx.field(default_factory=lambda: _f(9.21))
@@ -177,7 +179,7 @@ def init(spec: SlamSpec, params: SlamParams, bearings: Float[Array, " b"]) -> Sl
         t_prev=zero_f,
         lo_ok=jnp.asarray(False),
         lo_bias_jac=jnp.zeros((2, 2)),
-        lo_bias=bias_filter_init(jnp.zeros(2), params.lo_bias_std),
+        lo_bias=bias_filter_init(jnp.zeros(2), params.lo_bias_mean, params.lo_bias_std),
         grid=init_grid(spec.grid),
         map_stale=jnp.asarray(False),
         loops=zero_i,
