@@ -47,7 +47,7 @@ def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
 
     keep = ("runs", "seconds", "seed", "samples", "horizon", "every", "band_height", "band_reduce")
     keep += ("map_miss_probability", "map_hit_offset_cells", "revisit_after", "footprint_padding", "wall_heading")
-    keep += ("map_clear_range",)
+    keep += ("map_clear_range", "loop_consistency_chi2")
     slam = load_params(args.slam_params) if args.slam_params else None  # the values: an edited file is another cell
     settings = {"robot": robot, "world": world, "variant": variant, "traces": args.traces, "slam_params": slam}
     settings |= {k: getattr(args, k) for k in keep}
@@ -56,6 +56,7 @@ def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     settings["leg_bias_sideways"] = leg_bias_sideways(robot, args.leg_bias_sideways)  # the value the robot runs with
     if variant != "full":  # the baseline never takes wall-heading priors, marks low obstacles or seeks views
         settings |= {"wall_heading": "off", "low_obstacles": False, "view_goals": False, "leg_bias_sideways": 0.0}
+        settings["loop_consistency_chi2"] = (slam or load_params())["loop_consistency_chi2"]  # the file's
     return settings
 
 
@@ -75,6 +76,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
     from jaxquad.explore.report import coverage_samples, summarize
     from jaxquad.io.atomic import atomic_write_text
     from jaxquad.io.jsonfile import to_json
+    from jaxquad.slam import load_params
 
     name = f"{robot}_{world}_{variant}"
     settings = _cell_settings(args, robot, world, variant)
@@ -84,7 +86,8 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         # rows kept before --slam-params and the options below it had none: the values they ran with
         old = {"slam_params": None, "revisit_after": 0.0, "footprint_padding": 0.1, "low_obstacles": False}
         old |= {"wall_heading": "off", "map_hit_offset_cells": 0.0, "view_goals": False, "map_clear_range": 0.0}
-        old |= {"leg_bias_sideways": 0.0}
+        file_gate = (settings["slam_params"] or load_params())["loop_consistency_chi2"]
+        old |= {"leg_bias_sideways": 0.0, "loop_consistency_chi2": file_gate}
         if old | saved.get("settings", {}) != settings:
             raise CheckpointError(f"{done}: a finished cell of other settings; remove it or choose another folder")
         print(f"{name}: finished earlier ({done})", file=sys.stderr, flush=True)
@@ -110,6 +113,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         footprint_padding=args.footprint_padding,
         map_clear_range=args.map_clear_range,
         leg_bias_sideways=args.leg_bias_sideways,
+        loop_consistency_chi2=args.loop_consistency_chi2,
         low_obstacles=args.low_obstacles == "on",
         view_goals=args.view_goals == "on",
         trace_robots=args.runs if args.traces else 4,

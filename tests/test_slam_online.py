@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from _laser2d import box, cast
+from scipy import stats
 
 from jaxquad.cli import main
 from jaxquad.io import load_map, read_tum
@@ -126,6 +127,13 @@ def test_loop_closed_and_drift_removed():
     assert odom_ate > 1.0  # the odometry alone is far off after the loop
     assert int(state.loops[0]) >= 1 and out.loop_closed[0].any()
     assert _ate(final, LOOP) < 0.05 < 0.1 * odom_ate
+    # The first closure's chi-square lies between the 3-dof 95 % and 99.9 % points: the leg odometry's heading-rate
+    # bias (0.005 rad/s) is not in its twist covariance, so exploration's gate (7.81) would refuse what slam.yaml's
+    # (16.27) accepts.
+    first_chi2 = float(np.asarray(out.loop_chi2[0])[np.asarray(out.loop_closed[0])][0])
+    file_gate = load_params()["loop_consistency_chi2"]
+    assert file_gate == pytest.approx(stats.chi2.ppf(0.999, 3), abs=5e-3)
+    assert stats.chi2.ppf(0.95, 3) < first_chi2 <= file_gate
     # Node spacing follows the thresholds: one node per 0.5 s slot while moving.
     n = int(state.n_nodes[0])
     assert abs(n - len(LOOP) * DT / 0.5) <= 2 and not bool(state.full[0])
@@ -431,3 +439,11 @@ def test_params_file_checks(tmp_path):
     np.testing.assert_allclose(sideways, [0.0, 0.02])
     with pytest.raises(ValueError, match="leg_bias_sideways"):
         ExploreConfig(leg_bias_sideways=-0.01)
+    # Exploration's full variant gates loop closures at the 3-dof 95 % point in place of the file's; the baseline
+    # keeps the file's.
+    assert ExploreConfig().slam_values()["loop_consistency_chi2"] == pytest.approx(stats.chi2.ppf(0.95, 3), abs=5e-3)
+    baseline = ExploreConfig(variant="baseline").slam_values()["loop_consistency_chi2"]
+    assert baseline == load_params()["loop_consistency_chi2"]
+    assert ExploreConfig(loop_consistency_chi2=3.0).slam_values()["loop_consistency_chi2"] == 3.0
+    with pytest.raises(ValueError, match="loop_consistency_chi2"):
+        ExploreConfig(loop_consistency_chi2=0.0)

@@ -89,6 +89,14 @@ def add_loop_arguments(parser: argparse.ArgumentParser) -> None:
         "(default: the robot's, 0.01 for the Badger, whose leg odometry drifts sideways, 0 for the Go2)",
     )
     parser.add_argument(
+        "--loop-consistency-chi2",
+        type=float,
+        default=c.loop_consistency_chi2,
+        help="the full variant's SLAM refuses a loop closure whose chi-square against the graph (3 dof) exceeds this, "
+        f"in place of the SLAM file's loop_consistency_chi2 (default {c.loop_consistency_chi2:g}, the 95 %% point; "
+        "the baseline variant: the file's)",
+    )
+    parser.add_argument(
         "--footprint-padding",
         type=float,
         default=c.footprint_padding,
@@ -105,6 +113,8 @@ def check_loop_arguments(args: argparse.Namespace) -> None:
         raise ValueError(f"--map-miss-probability must lie in (0, 0.5), got {args.map_miss_probability}")
     if not 0.0 <= args.map_hit_offset_cells <= 1.0:
         raise ValueError(f"--map-hit-offset-cells must lie in [0, 1], got {args.map_hit_offset_cells}")
+    if not (math.isfinite(args.loop_consistency_chi2) and args.loop_consistency_chi2 > 0):
+        raise ValueError(f"--loop-consistency-chi2 must be a finite number > 0, got {args.loop_consistency_chi2}")
     for option, value in (
         ("--revisit-after", args.revisit_after),
         ("--footprint-padding", args.footprint_padding),
@@ -234,6 +244,7 @@ def run(args: argparse.Namespace) -> int:
         footprint_padding=args.footprint_padding,
         map_clear_range=args.map_clear_range,
         leg_bias_sideways=args.leg_bias_sideways,
+        loop_consistency_chi2=args.loop_consistency_chi2,
         band_height=args.band_height,
         band_reduce=args.band_reduce,
         trace_robots=max(args.plot_robots, 1),
