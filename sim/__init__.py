@@ -6,8 +6,9 @@
 
 from jaxquad.sim.fleet import Fleet, FleetConfig, build_fleet, init, n_chunks, run_chunk
 from jaxquad.sim.gait import TROT_OFFSETS, leg_phases, raibert_foothold, swing_position
+from jaxquad.sim.gait_structure import Gait
 from jaxquad.sim.leg_ik import LegGeometry, leg_fk, leg_ik
-from jaxquad.sim.locomotion import Gait, GaitParams, GaitState, base_to_leg_trunk, gait_init, gait_step
+from jaxquad.sim.locomotion import GaitParams, GaitState, base_to_leg_trunk, gait_init, gait_step
 from jaxquad.sim.robot_step import FleetFunctions, RobotSetup, RobotState
 from jaxquad.sim.rollout import FleetLog, rollout
 from jaxquad.sim.route_follow import RouteParams, RouteState, route_init, route_step

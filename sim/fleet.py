@@ -58,7 +58,8 @@ __all__ = [
     "n_chunks",
     "run_chunk",
 ]
-from .locomotion import Gait, GaitParams
+from .gait_structure import Gait
+from .locomotion import GaitParams
 from .route_follow import RouteParams
 from .routes import plan_loop
 from .worlds import World, make_world

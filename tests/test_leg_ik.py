@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from jaxquad.robots import load
+from jaxquad.sim.gait_structure import Gait
 from jaxquad.sim.leg_ik import leg_fk, leg_ik
-from jaxquad.sim.locomotion import Gait, base_to_leg_trunk
+from jaxquad.sim.locomotion import base_to_leg_trunk
 
 ROBOTS = ("go2", "badger")
 

@@ -11,7 +11,8 @@ import pytest
 from mujoco import mjx
 
 from jaxquad.robots import load
-from jaxquad.sim.locomotion import Gait, GaitParams, gait_init, gait_step
+from jaxquad.sim.gait_structure import Gait
+from jaxquad.sim.locomotion import GaitParams, gait_init, gait_step
 from jaxquad.sim.route_follow import RouteParams, route_init, route_step
 
 ROBOTS = ("go2", "badger")
