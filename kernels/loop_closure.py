@@ -3,7 +3,10 @@
 For the current node j, the old nodes i considered are those stored (`node_mask`), earlier than j,
 reached after at least `min_travel` m of path since them (so the recent chain never closes a loop
 with itself) and within `search_radius` m of node j. They must form a chain of at least
-`min_chain` consecutive nodes; the chain holding the nearest such node is used, at most
+`min_chain` consecutive nodes, or (with `min_chain_distance` > 0) of consecutive nodes spanning at least
+`min_chain_distance` m of path: a count assumes nodes at the node rule's spacing, and a log that keeps a scan
+every metre holds too few of them within the search radius to make the count; the chain holding the nearest
+such node is used, at most
 `LoopSpec.chain` of its scans around that node, as the reference map. Node j's scan is matched
 against it twice, as Karto does: a coarse match over a large window (`LoopSpec.coarse`, +-2 m at
 0.05 m by default), which must reach `coarse_response`, then a fine match (`LoopSpec.fine`, the
@@ -49,6 +52,7 @@ class LoopParams(eqx.Module):
     match: MatchParams = eqx.field(default_factory=MatchParams)
     search_radius: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(3.0))  # m
     min_chain: Int[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(7))  # consecutive nodes
+    min_chain_distance: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(0.0))  # m of path; 0: off
     min_travel: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(6.0))  # m of path since node i
     coarse_response: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(0.35))
     fine_response: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(0.45))
@@ -70,12 +74,18 @@ class LoopCandidate(eqx.Module):
     pose_j: Float[Array, "3"]  # matched world pose of node j
 
 
-def _chains(eligible: Bool[Array, " n"]) -> tuple[Int[Array, " n"], Int[Array, " n"]]:
-    """Label (1, 2, ...; 0 if not eligible) of each node's run of consecutive eligible nodes and its length."""
+def _chains(
+    eligible: Bool[Array, " n"], travel: Float[Array, " n"]
+) -> tuple[Int[Array, " n"], Int[Array, " n"], Float[Array, " n"]]:
+    """Label (1, 2, ...; 0 if not eligible) of each node's run of consecutive eligible nodes, its length, and
+    the path it spans (`travel`, the path length up to each node, at its last node less at its first; m)."""
+    n = eligible.shape[0]
     start = eligible & ~jnp.concatenate([jnp.zeros(1, bool), eligible[:-1]])
     label = jnp.where(eligible, jnp.cumsum(start), 0)
-    length = jnp.zeros(eligible.shape[0] + 1, jnp.int32).at[label].add(1)
-    return label, jnp.where(eligible, length[label], 0)
+    length = jnp.zeros(n + 1, jnp.int32).at[label].add(1)
+    first = jnp.full(n + 1, jnp.inf).at[label].min(travel)
+    last = jnp.full(n + 1, -jnp.inf).at[label].max(travel)
+    return label, jnp.where(eligible, length[label], 0), jnp.where(eligible, last[label] - first[label], 0.0)
 
 
 def find_loop_closure(
@@ -95,8 +105,8 @@ def find_loop_closure(
     travel = jnp.concatenate([jnp.zeros(1), jnp.cumsum(step)])
     dist = jnp.linalg.norm(poses[:, :2] - poses[j, :2], axis=1)
     eligible = node_mask & (idx < j) & (travel[j] - travel >= params.min_travel) & (dist < params.search_radius)
-    label, length = _chains(eligible)
-    usable = length >= params.min_chain
+    label, length, span = _chains(eligible, travel)
+    usable = (length >= params.min_chain) | ((params.min_chain_distance > 0) & (span >= params.min_chain_distance))
     nearest = jnp.argmin(jnp.where(usable, dist, jnp.inf))
     found = usable[nearest]
 

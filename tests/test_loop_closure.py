@@ -1,6 +1,6 @@
 """Loop-closure candidates on scans cast by an independent NumPy caster: a loop around a block (found, with
-the true relative pose), a corridor of identical pillars (rejected as ambiguous), too-short chains, a match
-spread too wide (rejected as degenerate)."""
+the true relative pose), a corridor of identical pillars (rejected as ambiguous), too-short chains, chains
+counted in path for sparse nodes, a match spread too wide (rejected as degenerate)."""
 
 import functools
 
@@ -10,7 +10,7 @@ import numpy as np
 from _laser2d import box, cast
 
 from jaxquad.kernels.lie import SE2
-from jaxquad.kernels.loop_closure import LoopParams, LoopSpec, find_loop_closure
+from jaxquad.kernels.loop_closure import LoopParams, LoopSpec, _chains, find_loop_closure
 
 BEARINGS = np.linspace(-np.pi, np.pi, 240, endpoint=False)
 CAPACITY = 128
@@ -140,3 +140,51 @@ def test_degenerate_match_rejected_by_its_spread():
     for scale, accept in ((0.99, False), (1.01, True)):
         p = LoopParams(max_position_std=jnp.asarray(scale * largest, jnp.float32))
         assert bool(_find(SPEC, p, poses, ranges, valid, mask, j).accept) == accept
+
+
+def test_chain_spans_against_numpy():
+    """Each eligible node's run of consecutive eligible nodes: its length and the path it spans, against a
+    plain loop over random masks."""
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        eligible = rng.random(40) < 0.6
+        travel = np.cumsum(rng.uniform(0.0, 1.5, 40))
+        label, length, span = jax.jit(_chains)(jnp.asarray(eligible), jnp.asarray(travel, jnp.float32))
+        want_len, want_span = np.zeros(40, int), np.zeros(40)
+        k = 0
+        while k < 40:
+            if not eligible[k]:
+                k += 1
+                continue
+            end = k
+            while end + 1 < 40 and eligible[end + 1]:
+                end += 1
+            want_len[k : end + 1] = end - k + 1
+            want_span[k : end + 1] = travel[end] - travel[k]
+            k = end + 1
+        np.testing.assert_array_equal(np.asarray(length), want_len)
+        np.testing.assert_allclose(np.asarray(span), want_span, atol=1e-5)
+        assert np.all((np.asarray(label) > 0) == eligible)
+
+
+def test_sparse_nodes_close_the_loop_by_chain_distance():
+    """Nodes 1 m apart, as a log that keeps a scan per metre: no run of 7 old nodes fits within the 3 m search
+    radius, so the count alone finds no chain; counted in path (3 m) the loop closes with the true relative pose."""
+    truth = _path([(0.0, -3.0), (4.0, -3.0), (4.0, 3.0), (-4.0, 3.0), (-4.0, -3.0), (1.5, -3.0)], 1.0)
+    poses, ranges, valid, mask = _nodes(LOOP_WORLD, truth, (0.5, -0.35, 0.06))
+    j = len(truth) - 1
+    est = np.asarray(poses)[: len(truth)]
+    travel = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(est[:, :2], axis=0).T))])
+    near = (np.hypot(*(est[:j, :2] - est[j, :2]).T) < 3.0) & (travel[j] - travel[:j] >= 6.0)
+    runs = np.diff(np.flatnonzero(np.diff(np.concatenate([[0], near.astype(int), [0]]))))[::2]
+    assert 0 < runs.max() < 7  # old nodes near node j, but too few in a row for the count
+    counted = _find(SPEC, LoopParams(), poses, ranges, valid, mask, j)
+    assert int(counted.chain_length) == 0 and not bool(counted.accept)
+    spanned = _find(SPEC, LoopParams(min_chain_distance=jnp.asarray(3.0)), poses, ranges, valid, mask, j)
+    assert bool(spanned.accept)
+    i = int(spanned.i)
+    err = _relative(np.asarray(poses[i]), np.asarray(spanned.pose_j)) - _relative(truth[i], truth[j])
+    assert np.linalg.norm(err[:2]) < 0.03 and abs(err[2]) < np.deg2rad(1.0)
+    # A span longer than the run of nearby old nodes finds nothing either.
+    far = _find(SPEC, LoopParams(min_chain_distance=jnp.asarray(8.0)), poses, ranges, valid, mask, j)
+    assert not bool(far.accept)

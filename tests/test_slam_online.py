@@ -389,6 +389,13 @@ def test_params_file_checks(tmp_path):
     occ = slam_config(values | {"occupancy_hit_offset_cells": 0.2}, GRID, "off")[1]
     assert float(occ.occupancy.hit_offset) == pytest.approx(0.2 * GRID.resolution)
     assert laser["occupancy_hit_offset_cells"] == 0.0  # slam_toolbox's for 2D lidars
+    # Loop chains: by the count alone in slam.yaml; laser logs also take a chain spanning 4.5 m of path.
+    assert values["loop_match_minimum_chain_distance"] == 0.0 and laser["loop_match_minimum_chain_distance"] == 4.5
+    loop = slam_config(values | {"loop_match_minimum_chain_distance": 4.5}, GRID, "off")[1].loop
+    assert float(loop.min_chain_distance) == 4.5 and int(loop.min_chain) == 7
+    p.write_text("loop_match_minimum_chain_distance: -1\n")
+    with pytest.raises(ValueError, match="out of range"):
+        load_params(p)
     # Exploration's own offset replaces the file's, whatever the file holds.
     from jaxquad.explore import ExploreConfig
     from jaxquad.explore.config import SCAN_RANGE
