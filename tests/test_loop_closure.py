@@ -142,6 +142,25 @@ def test_degenerate_match_rejected_by_its_spread():
         assert bool(_find(SPEC, p, poses, ranges, valid, mask, j).accept) == accept
 
 
+def _numpy_chains(eligible: np.ndarray, travel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per node, the length of its run of consecutive eligible nodes and the path the run spans (0 if not
+    eligible), by a plain loop."""
+    n = len(eligible)
+    length, span = np.zeros(n, int), np.zeros(n)
+    k = 0
+    while k < n:
+        if not eligible[k]:
+            k += 1
+            continue
+        end = k
+        while end + 1 < n and eligible[end + 1]:
+            end += 1
+        length[k : end + 1] = end - k + 1
+        span[k : end + 1] = travel[end] - travel[k]
+        k = end + 1
+    return length, span
+
+
 def test_chain_spans_against_numpy():
     """Each eligible node's run of consecutive eligible nodes: its length and the path it spans, against a
     plain loop over random masks."""
@@ -150,18 +169,7 @@ def test_chain_spans_against_numpy():
         eligible = rng.random(40) < 0.6
         travel = np.cumsum(rng.uniform(0.0, 1.5, 40))
         label, length, span = jax.jit(_chains)(jnp.asarray(eligible), jnp.asarray(travel, jnp.float32))
-        want_len, want_span = np.zeros(40, int), np.zeros(40)
-        k = 0
-        while k < 40:
-            if not eligible[k]:
-                k += 1
-                continue
-            end = k
-            while end + 1 < 40 and eligible[end + 1]:
-                end += 1
-            want_len[k : end + 1] = end - k + 1
-            want_span[k : end + 1] = travel[end] - travel[k]
-            k = end + 1
+        want_len, want_span = _numpy_chains(eligible, travel)
         np.testing.assert_array_equal(np.asarray(length), want_len)
         np.testing.assert_allclose(np.asarray(span), want_span, atol=1e-5)
         assert np.all((np.asarray(label) > 0) == eligible)
@@ -176,8 +184,7 @@ def test_sparse_nodes_close_the_loop_by_chain_distance():
     est = np.asarray(poses)[: len(truth)]
     travel = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(est[:, :2], axis=0).T))])
     near = (np.hypot(*(est[:j, :2] - est[j, :2]).T) < 3.0) & (travel[j] - travel[:j] >= 6.0)
-    runs = np.diff(np.flatnonzero(np.diff(np.concatenate([[0], near.astype(int), [0]]))))[::2]
-    assert 0 < runs.max() < 7  # old nodes near node j, but too few in a row for the count
+    assert 0 < _numpy_chains(near, travel[:j])[0].max() < 7  # old nodes near node j, but too few in a row
     counted = _find(SPEC, LoopParams(), poses, ranges, valid, mask, j)
     assert int(counted.chain_length) == 0 and not bool(counted.accept)
     spanned = _find(SPEC, LoopParams(min_chain_distance=jnp.asarray(3.0)), poses, ranges, valid, mask, j)
