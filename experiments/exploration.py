@@ -40,6 +40,14 @@ TARGET_S = {"house": 600.0, "warehouse": 900.0}
 GOAL = 0.95  # coverage a run should reach
 
 
+def _file_gate(slam: dict | None) -> float:
+    """The SLAM file's loop_consistency_chi2 (`slam` the --slam-params values, None: slam.yaml's): the baseline's
+    gate, and the full variant's before --loop-consistency-chi2."""
+    from jaxquad.slam import load_params
+
+    return (slam or load_params())["loop_consistency_chi2"]
+
+
 def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     """What a cell's row depends on: a finished row in --checkpoint is reused only for the same settings."""
     from jaxquad.explore.config import leg_bias_sideways
@@ -56,7 +64,7 @@ def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     settings["leg_bias_sideways"] = leg_bias_sideways(robot, args.leg_bias_sideways)  # the value the robot runs with
     if variant != "full":  # the baseline never takes wall-heading priors, marks low obstacles or seeks views
         settings |= {"wall_heading": "off", "low_obstacles": False, "view_goals": False, "leg_bias_sideways": 0.0}
-        settings["loop_consistency_chi2"] = (slam or load_params())["loop_consistency_chi2"]  # the file's
+        settings["loop_consistency_chi2"] = _file_gate(slam)
     return settings
 
 
@@ -76,7 +84,6 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
     from jaxquad.explore.report import coverage_samples, summarize
     from jaxquad.io.atomic import atomic_write_text
     from jaxquad.io.jsonfile import to_json
-    from jaxquad.slam import load_params
 
     name = f"{robot}_{world}_{variant}"
     settings = _cell_settings(args, robot, world, variant)
@@ -86,8 +93,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         # rows kept before --slam-params and the options below it had none: the values they ran with
         old = {"slam_params": None, "revisit_after": 0.0, "footprint_padding": 0.1, "low_obstacles": False}
         old |= {"wall_heading": "off", "map_hit_offset_cells": 0.0, "view_goals": False, "map_clear_range": 0.0}
-        file_gate = (settings["slam_params"] or load_params())["loop_consistency_chi2"]
-        old |= {"leg_bias_sideways": 0.0, "loop_consistency_chi2": file_gate}
+        old |= {"leg_bias_sideways": 0.0, "loop_consistency_chi2": _file_gate(settings["slam_params"])}
         if old | saved.get("settings", {}) != settings:
             raise CheckpointError(f"{done}: a finished cell of other settings; remove it or choose another folder")
         print(f"{name}: finished earlier ({done})", file=sys.stderr, flush=True)
