@@ -7,6 +7,7 @@ from __future__ import annotations
 import functools
 import json
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -17,7 +18,7 @@ from scipy import stats
 from jaxquad.cli import main
 from jaxquad.io import load_map, read_tum
 from jaxquad.io.carmen import LaserLog, save_laser_npz
-from jaxquad.kernels.scan_grid import MatchSpec, cells_for_range
+from jaxquad.kernels.scan_grid import MatchParams, MatchSpec, cells_for_range
 from jaxquad.slam import (
     SlamParams,
     SlamSpec,
@@ -28,8 +29,10 @@ from jaxquad.slam import (
     redraw_maps,
     run_fleet,
 )
+from jaxquad.slam.online import ODOMETRY_STEP_FLOOR, _match_odometry_chi2
 from jaxquad.slam.report import tum_of
 from jaxquad.slam.run import nodes_needed
+from jaxquad.slam.state import EDGE_ODOMETRY
 
 # A 2 m wide corridor around a block, with features on its walls so that places differ.
 WORLD = np.concatenate(
@@ -183,6 +186,11 @@ def test_map_from_every_scan():
     np.testing.assert_allclose(every.grid.log_odds[0], ref.log_odds, atol=1e-4)
 
 
+# These sparse scans (120 beams) match along the corridor only with a lidar's smear (laser.yaml's 0.1 m): with the
+# depth camera's 0.03 m each node's match stays at the last node.
+SMEAR = SlamParams(match=MatchParams(smear_sigma=jnp.asarray(0.1)))
+
+
 def test_leg_constraints_pull_back_a_corrupted_match():
     """One scan cast 0.35 m to the side of where the robot is (as a shaking robot's scan can be): with
     no leg constraint the node goes where that scan matched; with either kind it stays near the truth."""
@@ -193,10 +201,56 @@ def test_leg_constraints_pull_back_a_corrupted_match():
     x = _inputs(truth, truth.copy(), truth.copy(), ranges)
     errors = {}
     for lo in ("off", "preintegrated"):
-        state, out, _ = run_fleet(_spec(lo), SlamParams(), x)
+        state, out, _ = run_fleet(_spec(lo), SMEAR, x)
+        assert np.abs(out.pose[0, k - 5, :2] - truth[k - 5, :2]).max() < 0.05  # the nodes before it matched well
         assert out.added[0, k]
         errors[lo] = float(np.linalg.norm(out.pose[0, k, :2] - truth[k, :2]))
     assert errors["off"] > 0.25 and errors["preintegrated"] < 0.05, errors
+
+
+def test_odometry_gate_refuses_a_turned_match():
+    """One node scan cast from a pose turned 8.6 deg (a match far from where the wheels say the robot went): without
+    the odometry test the node takes the turn; with it the odometry step replaces that match, and at most the next
+    one (matched against a buffer that holds the turned scan), no earlier one."""
+    truth = LOOP[:60]
+    ranges = np.stack([cast(WORLD, p, BEARINGS, 6.0) for p in truth])
+    k = 35  # a node scan
+    ranges[k] = cast(WORLD, truth[k] + [0.0, 0.0, 0.15], BEARINGS, 6.0)
+    x = _inputs(truth, truth.copy(), truth.copy(), ranges)
+    heading, fallbacks = {}, {}
+    laser = eqx.tree_at(lambda p: p.match_cov_scale, SMEAR, jnp.float32(1.0))  # laser.yaml's: the spread as it is
+    for gate in (np.inf, 16.27):
+        state, out, _ = run_fleet(
+            _spec("off"), eqx.tree_at(lambda p: p.match_odometry_gate, laser, jnp.float32(gate)), x
+        )
+        assert out.added[0, k]
+        heading[gate] = abs(float(out.pose[0, k, 2] - truth[k, 2]))
+        m = int(state.n_edges[0])
+        fallbacks[gate] = state.graph.edge_j[0, :m][state.edge_kind[0, :m] == EDGE_ODOMETRY].tolist()
+    assert heading[np.inf] > 0.1 and heading[16.27] < 0.01, heading
+    node = int(out.node[0, k])
+    assert fallbacks[np.inf] == [] and fallbacks[16.27][0] == node and fallbacks[16.27] in ([node], [node, node + 1])
+
+
+def test_match_odometry_chi2_against_numpy():
+    """The test's chi-square: the match's pose in the predicted pose's frame against the step's motion model plus
+    the match's covariance, computed here with NumPy's SE(2) and solve."""
+    rng = np.random.default_rng(3)
+    std = np.array([0.05, 0.02, 0.05])
+    params = SlamParams(odometry_step_std=jnp.asarray(std, jnp.float32))
+    for _ in range(5):
+        x_last, step = rng.normal(size=3), np.array([0.4, -0.1, 0.3]) * rng.uniform(0.2, 2.0)
+        pred = _integrate(x_last, [step])[-1]
+        matched = pred + rng.normal(scale=[0.03, 0.03, 0.02])
+        A = rng.normal(size=(3, 3)) * 0.01
+        cov_match = A @ A.T + 1e-4 * np.eye(3)
+        d = np.hypot(step[0], step[1])
+        sigma = np.array([std[0] * d, std[0] * d, std[1] * d + std[2] * abs(step[2])]) + ODOMETRY_STEP_FLOOR
+        r = _relative(pred, matched)
+        want = r @ np.linalg.solve(np.diag(sigma**2) + cov_match, r)
+        f = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+        got = _match_odometry_chi2(params, f(pred), f(step), f(matched), f(cov_match))
+        assert float(got) == pytest.approx(want, rel=1e-3)
 
 
 def test_fleet_equals_single_robots():
@@ -394,6 +448,14 @@ def test_params_file_checks(tmp_path):
     loop = slam_config(values | {"loop_match_minimum_chain_distance": 4.5}, GRID, "off")[1].loop
     assert float(loop.min_chain_distance) == 4.5 and int(loop.min_chain) == 7
     p.write_text("loop_match_minimum_chain_distance: -1\n")
+    with pytest.raises(ValueError, match="out of range"):
+        load_params(p)
+    # The matches' odometry test: off (0, no limit) in both files.
+    assert values["link_match_odometry_gate_chi2"] == 0.0 == laser["link_match_odometry_gate_chi2"]
+    assert float(slam_config(values, GRID, "off")[1].match_odometry_gate) == np.inf
+    odo = slam_config(values | {"link_match_odometry_gate_chi2": 9.0, "odometry_step_std_yaw": 0.1}, GRID, "off")[1]
+    assert float(odo.match_odometry_gate) == 9.0 and np.allclose(odo.odometry_step_std, [0.05, 0.02, 0.1])
+    p.write_text("odometry_step_std_xy: -0.01\n")
     with pytest.raises(ValueError, match="out of range"):
         load_params(p)
     # Exploration's own offset replaces the file's, whatever the file holds.

@@ -17,7 +17,10 @@ shared clock so that the robots of a fleet add their nodes on the same scans (se
 multi-resolution correlative search) against the running buffer: the last `SlamSpec.buffer` nodes
 within `buffer_distance` m, smeared into one likelihood grid. The match gives an edge from the last
 node (its covariance rotated into the node's frame); a response under `link_min_response` gives the
-odometry step instead, with `odom_fallback_std`.
+odometry step instead, with `odom_fallback_std`, and so does a match whose pose lies farther from the odometry's
+prediction than `match_odometry_gate` (a chi-square, with a motion model of the step, `odometry_step_std`, plus the
+match's covariance; off by default): a scan matched 9 deg off, where the wheels turned by less than a degree, would
+otherwise carry its turn into every later pose until a loop closes.
 
 Leg-odometry constraints (`SlamSpec.lo_constraints`), one more edge from the last node:
   off            none: the node is where the scan matched (Karto's behaviour).
@@ -86,6 +89,10 @@ from jaxquad.slam.state import (
 
 def _base(params: SlamParams, sensor: Float[Array, "3"]) -> Float[Array, "3"]:
     return xy_theta(se2(sensor) @ se2(params.T_base_laser).inverse())
+
+
+# Std floor of an odometry step (m, m, rad) in the match's odometry test: a robot standing still reads some noise.
+ODOMETRY_STEP_FLOOR = 1e-3
 
 
 def _between(a: Float[Array, "3"], b: Float[Array, "3"]) -> Float[Array, "3"]:
@@ -177,11 +184,25 @@ def _leg_edge(spec: SlamSpec, params: SlamParams, state: SlamState, last, inp: S
     return z, _information(cov), ok & jnp.all(jnp.isfinite(cov))
 
 
-def _add_node(spec: SlamSpec, params: SlamParams, state: SlamState, pred, inp: SlamInputs):
+def _match_odometry_chi2(params: SlamParams, pred, T_step, matched, cov_match) -> Float[Array, ""]:
+    """Chi-square (3 dof) of the matched pose against the odometry's prediction `pred`, in the new node's frame:
+    the odometry step `T_step` since the last node has the std `odometry_step_std` . (d, d, |dtheta|), d its
+    length, plus `ODOMETRY_STEP_FLOOR`; the match adds its covariance."""
+    a, b, c = params.odometry_step_std
+    d = jnp.hypot(T_step[0], T_step[1])
+    std = jnp.stack([a * d, a * d, b * d + c * jnp.abs(T_step[2])]) + ODOMETRY_STEP_FLOOR
+    r = _between(pred, matched)
+    S = jnp.diag(std**2) + cov_match
+    return r @ jnp.linalg.solve(0.5 * (S + S.T), r)
+
+
+def _add_node(spec: SlamSpec, params: SlamParams, state: SlamState, pred, T_step, inp: SlamInputs):
     j, last = state.n_nodes, jnp.maximum(state.n_nodes - 1, 0)
     first = j == 0
     matched, cov_match, response, good = _match_buffer(spec, params, state, pred, inp)
     x_last = state.graph.poses[last]
+    far = _match_odometry_chi2(params, pred, T_step, matched, cov_match) > params.match_odometry_gate
+    good = good & ~(far & ~first)
     fallback = _information(jnp.diag(params.odom_fallback_std**2))
     z_link = jnp.where(good, _between(x_last, matched), _between(x_last, pred))
     info_link = jnp.where(good, _information(cov_match), fallback)
@@ -339,7 +360,7 @@ def step(spec: SlamSpec, params: SlamParams, state: SlamState, inp: SlamInputs) 
 
     nan = jnp.asarray(jnp.nan)
     none = (state, nan, jnp.asarray(False), jnp.asarray(-1, jnp.int32), nan, nan)
-    add = lambda c: _add_node(spec, params, c[0], pred, inp)  # noqa: E731
+    add = lambda c: _add_node(spec, params, c[0], pred, T_node_scan, inp)  # noqa: E731
     state, response, closed, loop_node, loop_chi2, heading_error = run_if(due, add, none)
     if spec.refresh_map:
         state = refresh_map(spec, params, state)
