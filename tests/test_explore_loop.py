@@ -265,6 +265,29 @@ def test_experiment_keeps_a_cell_that_finishes_in_one_sitting(run, tmp_path, mon
     assert len(calls) == 1 and "finished earlier" in out.err and json.loads(out.out)[0] == row
 
 
+def test_speed_limit_and_frontier_gain_reach_the_loop():
+    """`max_speed` is MPPI's forward limit (the others kept: the paper's DWB limits) and `frontier_gain` the frontier
+    cost's weight of a cluster's size, in the closed loop's parameters."""
+    from jaxquad.explore import ExploreConfig
+    from jaxquad.explore.fleet import _params
+    from jaxquad.sim import FleetConfig, build_fleet
+    from jaxquad.sim.worlds import occupancy_map
+
+    fleet = build_fleet(FleetConfig(robot="go2", world="house", n_robots=1), compile_chunk=False)
+    truth = occupancy_map(fleet.worlds[0])
+    for cfg, v_max, gain in (
+        (ExploreConfig(n_robots=1), [0.26, 0.15, 0.8], 0.0),
+        (ExploreConfig(n_robots=1, max_speed=0.5, frontier_gain=0.25), [0.5, 0.15, 0.8], 0.25),
+    ):
+        p = _params(cfg, cfg.loop_config(), fleet, truth, 0.096)
+        np.testing.assert_allclose(p.nav.controller.v_max, v_max, rtol=1e-6)
+        assert float(p.explore.frontier.gain_scale) == pytest.approx(gain)
+    with pytest.raises(ValueError, match="max_speed"):
+        ExploreConfig(max_speed=0.0)
+    with pytest.raises(ValueError, match="frontier_gain"):
+        ExploreConfig(frontier_gain=-1.0)
+
+
 def test_clear_cells_are_the_reachable_squares_no_box_touches():
     """Against a supersampled reference (11 x 11 points per cell inside a box or not, for the cells whose centre is
     within a cell diagonal of a box) on a generated house; cells a box only grazes (within 6 mm) may go either way."""

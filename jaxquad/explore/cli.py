@@ -48,6 +48,20 @@ def add_loop_arguments(parser: argparse.ArgumentParser) -> None:
         f"the SLAM file's wall_heading (default {'on' if c.wall_heading else 'off'}; the baseline variant: never)",
     )
     parser.add_argument(
+        "--max-speed",
+        type=float,
+        default=c.max_speed,
+        help=f"the controller's forward speed limit, m/s (default {c.max_speed:g}: the paper's DWB limit)",
+    )
+    parser.add_argument(
+        "--frontier-gain",
+        type=float,
+        default=c.frontier_gain,
+        help="a frontier cluster's cost is its path cost (m) minus this times its size (m): 0 picks the nearest "
+        f"frontier (the paper's explore_lite settings), explore_lite's own defaults are 1/3 (default "
+        f"{c.frontier_gain:g})",
+    )
+    parser.add_argument(
         "--revisit-after",
         type=float,
         default=c.revisit_after,
@@ -109,6 +123,8 @@ def check_loop_arguments(args: argparse.Namespace) -> None:
     """A one-line ValueError for a value of `add_loop_arguments`' options out of its range."""
     import math
 
+    if not (math.isfinite(args.max_speed) and args.max_speed > 0):
+        raise ValueError(f"--max-speed must be a finite number > 0, got {args.max_speed}")
     if not 0.0 < args.map_miss_probability < 0.5:
         raise ValueError(f"--map-miss-probability must lie in (0, 0.5), got {args.map_miss_probability}")
     if not 0.0 <= args.map_hit_offset_cells <= 1.0:
@@ -116,6 +132,7 @@ def check_loop_arguments(args: argparse.Namespace) -> None:
     if not (math.isfinite(args.loop_consistency_chi2) and args.loop_consistency_chi2 > 0):
         raise ValueError(f"--loop-consistency-chi2 must be a finite number > 0, got {args.loop_consistency_chi2}")
     for option, value in (
+        ("--frontier-gain", args.frontier_gain),
         ("--revisit-after", args.revisit_after),
         ("--footprint-padding", args.footprint_padding),
         ("--map-clear-range", args.map_clear_range),
@@ -241,6 +258,8 @@ def run(args: argparse.Namespace) -> int:
         revisit_after=args.revisit_after,
         low_obstacles=args.low_obstacles == "on",
         view_goals=args.view_goals == "on",
+        frontier_gain=args.frontier_gain,
+        max_speed=args.max_speed,
         footprint_padding=args.footprint_padding,
         map_clear_range=args.map_clear_range,
         leg_bias_sideways=args.leg_bias_sideways,

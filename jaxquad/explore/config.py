@@ -85,6 +85,12 @@ class ExploreConfig:
     # (`nav.explore`, `kernels.view_goals`); the baseline variant's explorer never does (explore_lite's). 100 runs per
     # robot in the house, 600 s, H200, their first version: runs at 95 % Go2 65 -> 71, Badger 18 -> 25 (README).
     view_goals: bool = True
+    # m/s: the controller's forward speed limit (MPPI's vx); the paper's DWB limit 0.26 m/s by default. The
+    # aggressive gait walks up to 1 m/s.
+    max_speed: float = 0.26
+    # per m of a frontier cluster's size, against 1 per m of its path cost (`kernels.frontiers`): 0 picks the nearest
+    # frontier, the paper's choice; explore_lite's defaults (potential_scale 3, gain_scale 1) are 1/3.
+    frontier_gain: float = 0.0
     # s without an accepted loop closure before the robot drives back to a place mapped a minute or more ago to close
     # one (active loop closing, `jaxquad.nav.revisit`); 0: never.
     revisit_after: float = 0.0
@@ -101,10 +107,10 @@ class ExploreConfig:
         for name in ("n_robots", "samples", "horizon", "chunk_ticks", "band_height", "trace_robots"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("seconds", "spin_rate", "finish_time", "map_range"):
+        for name in ("seconds", "spin_rate", "finish_time", "map_range", "max_speed"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
-        for name in ("revisit_after", "footprint_padding", "map_clear_range"):  # 0: never, none, off
+        for name in ("frontier_gain", "revisit_after", "footprint_padding", "map_clear_range"):  # 0: off, never, none
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {getattr(self, name)}")
         bias = leg_bias_sideways(self.robot, self.leg_bias_sideways)

@@ -61,6 +61,8 @@ def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_d
     nav_params = loop_nav_params(
         truth.grid.shape, cfg.samples, cfg.horizon, REPLAN_TICKS, tick_dt, body, cfg.footprint_padding
     )
+    v_max = nav_params.controller.v_max.at[0].set(cfg.max_speed)
+    nav_params = eqx.tree_at(lambda p: p.controller.v_max, nav_params, v_max)
     values = cfg.slam_values()
     T_bc = np.asarray(fleet.T_base_camera)
     grid = slam.grid_spec_like(truth, slam.map_max_range(values))
@@ -72,7 +74,7 @@ def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_d
         # A known cell more likely free than not is free for the frontiers (the map format's 0.196 needs four
         # free readings of a cell in this SLAM's log-odds, so the edge of what was seen would never be a frontier).
         explore=nav_explore.ExploreParams.default(
-            view_goals=cfg.view_goals and cfg.variant == "full", free_thresh=50.0
+            view_goals=cfg.view_goals and cfg.variant == "full", free_thresh=50.0, gain_scale=cfg.frontier_gain
         ),
         revisit=revisit.RevisitParams.default(after=cfg.revisit_after or np.inf),
         # The camera's height above the floor when the robot stands at its home pose.
