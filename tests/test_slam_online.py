@@ -454,7 +454,7 @@ def test_params_file_checks(tmp_path):
     assert values["link_match_odometry_gate_chi2"] == 0.0 == laser["link_match_odometry_gate_chi2"]
     assert float(slam_config(values, GRID, "off")[1].match_odometry_gate) == np.inf
     odo = slam_config(values | {"link_match_odometry_gate_chi2": 9.0, "odometry_step_std_yaw": 0.1}, GRID, "off")[1]
-    assert float(odo.match_odometry_gate) == 9.0 and np.allclose(odo.odometry_step_std, [0.05, 0.02, 0.1])
+    assert float(odo.match_odometry_gate) == 9.0 and np.allclose(odo.odometry_step_std, [0.02, 0.01, 0.1])
     p.write_text("odometry_step_std_xy: -0.01\n")
     with pytest.raises(ValueError, match="out of range"):
         load_params(p)

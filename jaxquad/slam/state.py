@@ -64,7 +64,7 @@ class SlamParams(eqx.Module):
     # a match farther than this chi-square (3 dof) from the odometry's prediction is replaced by the odometry step,
     # whose std is odometry_step_std . (d, d, |dtheta|) for a step of length d: m/m, rad/m, rad/rad
     match_odometry_gate: Float[Array, ""] = eqx.field(default_factory=lambda: _f(jnp.inf))
-    odometry_step_std: Float[Array, "3"] = eqx.field(default_factory=lambda: _f([0.05, 0.02, 0.05]))
+    odometry_step_std: Float[Array, "3"] = eqx.field(default_factory=lambda: _f([0.02, 0.01, 0.02]))
     odom_fallback_std: Float[Array, "3"] = eqx.field(default_factory=lambda: _f([0.05, 0.05, 0.05]))  # m, m, rad
     velocity_cov: Float[Array, "3"] = eqx.field(default_factory=lambda: _f([0.1, 0.1, 0.05]))  # (m/s)^2, (rad/s)^2
     velocity_max_dt: Float[Array, ""] = eqx.field(default_factory=lambda: _f(5.0))  # s
