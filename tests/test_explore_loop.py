@@ -265,6 +265,34 @@ def test_experiment_keeps_a_cell_that_finishes_in_one_sitting(run, tmp_path, mon
     assert len(calls) == 1 and "finished earlier" in out.err and json.loads(out.out)[0] == row
 
 
+def test_near_obstacle_limit_where_an_obstacle_or_the_unknown_is_within_the_inflation_radius():
+    """The forward limit drops to the near-obstacle speed exactly where the robot's cell centre lies within the
+    costmap's inflation radius of an obstacle cell's centre (a brute-force NumPy distance) or is unknown; the other
+    limits stay."""
+    from jaxquad.explore.loop import near_obstacle_limit
+
+    occ = _room()
+    occupancy = occ.grid.copy()
+    occupancy[50:, 60:] = -1  # an unknown corner
+    grid = nav.cost_grid(PARAMS, jnp.asarray(occupancy), jnp.asarray(occ.origin[:2]), occ.resolution)
+    limit = jax.jit(jax.vmap(near_obstacle_limit, in_axes=(None, None, None, 0)))
+    rng = np.random.default_rng(0)
+    xy = rng.uniform([0.0, 0.0], [80 * 0.05, 60 * 0.05], size=(400, 2))
+    poses = jnp.asarray(np.c_[xy, rng.uniform(-3, 3, 400)], jnp.float32)
+    got = limit(PARAMS.controller, jnp.float32(0.2), grid, poses).v_max
+    rc = np.floor(xy[:, ::-1] / 0.05).astype(int)
+    centre = (rc[:, ::-1] + 0.5) * 0.05
+    obstacle = np.argwhere(occupancy >= 65)[:, ::-1]  # (col, row)
+    d = np.min(np.linalg.norm(centre[:, None] - (obstacle[None] + 0.5) * 0.05, axis=-1), axis=1)
+    radius = float(PARAMS.costmap.inflation_radius)
+    near = (d < radius) | (occupancy[rc[:, 0], rc[:, 1]] < 0)
+    clear = np.abs(d - radius) > 0.03  # cells on the radius itself are left out
+    fast = float(PARAMS.controller.v_max[0])
+    np.testing.assert_allclose(np.asarray(got[clear, 0]), np.where(near[clear], 0.2, fast))
+    np.testing.assert_allclose(np.asarray(got[:, 1:]), np.broadcast_to(PARAMS.controller.v_max[1:], (400, 2)))
+    assert near[clear].any() and (~near[clear]).any()
+
+
 def test_speed_limit_and_frontier_gain_reach_the_loop():
     """`max_speed` is MPPI's forward limit (the others kept: the paper's DWB limits) and `frontier_gain` the frontier
     cost's weight of a cluster's size, in the closed loop's parameters."""
@@ -282,10 +310,15 @@ def test_speed_limit_and_frontier_gain_reach_the_loop():
         p = _params(cfg, cfg.loop_config(), fleet, truth, 0.096)
         np.testing.assert_allclose(p.nav.controller.v_max, v_max, rtol=1e-6)
         assert float(p.explore.frontier.gain_scale) == pytest.approx(gain)
+        assert float(p.near_obstacle_speed) == pytest.approx(v_max[0])  # None: the limit everywhere
+    cfg = ExploreConfig(n_robots=1, max_speed=0.5, near_obstacle_speed=0.26)
+    assert float(_params(cfg, cfg.loop_config(), fleet, truth, 0.096).near_obstacle_speed) == pytest.approx(0.26)
     with pytest.raises(ValueError, match="max_speed"):
         ExploreConfig(max_speed=0.0)
     with pytest.raises(ValueError, match="frontier_gain"):
         ExploreConfig(frontier_gain=-1.0)
+    with pytest.raises(ValueError, match="near_obstacle_speed"):
+        ExploreConfig(near_obstacle_speed=0.0)
 
 
 def test_clear_cells_are_the_reachable_squares_no_box_touches():

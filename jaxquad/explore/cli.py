@@ -54,6 +54,13 @@ def add_loop_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"the controller's forward speed limit, m/s (default {c.max_speed:g}: the paper's DWB limit)",
     )
     parser.add_argument(
+        "--near-obstacle-speed",
+        type=float,
+        default=None,
+        help="the forward speed limit while the robot stands within the costmap's inflation radius (0.7 m) of a "
+        "known obstacle or on an unknown cell, m/s (default: --max-speed everywhere)",
+    )
+    parser.add_argument(
         "--frontier-gain",
         type=float,
         default=c.frontier_gain,
@@ -123,8 +130,9 @@ def check_loop_arguments(args: argparse.Namespace) -> None:
     """A one-line ValueError for a value of `add_loop_arguments`' options out of its range."""
     import math
 
-    if not (math.isfinite(args.max_speed) and args.max_speed > 0):
-        raise ValueError(f"--max-speed must be a finite number > 0, got {args.max_speed}")
+    for option, value in (("--max-speed", args.max_speed), ("--near-obstacle-speed", args.near_obstacle_speed)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{option} must be a finite number > 0, got {value}")
     if not 0.0 < args.map_miss_probability < 0.5:
         raise ValueError(f"--map-miss-probability must lie in (0, 0.5), got {args.map_miss_probability}")
     if not 0.0 <= args.map_hit_offset_cells <= 1.0:
@@ -260,6 +268,7 @@ def run(args: argparse.Namespace) -> int:
         view_goals=args.view_goals == "on",
         frontier_gain=args.frontier_gain,
         max_speed=args.max_speed,
+        near_obstacle_speed=args.near_obstacle_speed,
         footprint_padding=args.footprint_padding,
         map_clear_range=args.map_clear_range,
         leg_bias_sideways=args.leg_bias_sideways,

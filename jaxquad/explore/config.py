@@ -88,6 +88,9 @@ class ExploreConfig:
     # m/s: the controller's forward speed limit (MPPI's vx); the paper's DWB limit 0.26 m/s by default. The
     # aggressive gait walks up to 1 m/s.
     max_speed: float = 0.26
+    # m/s: the forward limit while the robot stands within the costmap's inflation radius (0.7 m) of a known
+    # obstacle, or on an unknown cell (`loop.near_obstacle_limit`); None: `max_speed` everywhere.
+    near_obstacle_speed: float | None = None
     # per m of a frontier cluster's size, against 1 per m of its path cost (`kernels.frontiers`): 0 picks the nearest
     # frontier, the paper's choice; explore_lite's defaults (potential_scale 3, gain_scale 1) are 1/3.
     frontier_gain: float = 0.0
@@ -110,6 +113,8 @@ class ExploreConfig:
         for name in ("seconds", "spin_rate", "finish_time", "map_range", "max_speed"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if self.near_obstacle_speed is not None and not self.near_obstacle_speed > 0:
+            raise ValueError(f"near_obstacle_speed must be positive, got {self.near_obstacle_speed}")
         for name in ("frontier_gain", "revisit_after", "footprint_padding", "map_clear_range"):  # 0: off, never, none
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {getattr(self, name)}")

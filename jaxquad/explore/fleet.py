@@ -84,6 +84,7 @@ def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_d
         body=body,
         yaw_rate_std=f32(values["leg_yaw_rate_std"]),
         spin_rate=f32(cfg.spin_rate),
+        near_obstacle_speed=f32(cfg.max_speed if cfg.near_obstacle_speed is None else cfg.near_obstacle_speed),
         finish_time=f32(cfg.finish_time),
         lost_error=f32(0.5),
         lost_time=f32(2.0),

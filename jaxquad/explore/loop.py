@@ -104,6 +104,9 @@ class ExploreLoopParams(eqx.Module):
     body: BodyParams
     yaw_rate_std: Float[Array, ""]  # rad/s, std of the leg-odometry yaw rate (the SLAM's leg edges)
     spin_rate: Float[Array, ""]  # rad/s, turning in place without a goal
+    # m/s: the forward limit where the robot's costmap cell is inflated (within the inflation radius of a known
+    # obstacle) or unknown, when below `nav.controller`'s (`near_obstacle_limit`)
+    near_obstacle_speed: Float[Array, ""]
     finish_time: Float[Array, ""]  # s without a goal (turning) before exploration counts as finished
     lost_error: Float[Array, ""]  # m
     lost_time: Float[Array, ""]  # s
@@ -168,6 +171,18 @@ def coverage(values: Int[Array, "H W"], reachable: Bool[Array, "H W"]) -> Float[
 def goal_of(ex: explore.ExploreState, rv: revisit.RevisitState) -> tuple[Float[Array, " 3"], Bool[Array, ""]]:
     """(goal pose, whether there is one): the revisited node while a revisit lasts, else the frontier or view goal."""
     return jnp.where(rv.active, rv.goal, ex.goal), rv.active | ex.has_goal
+
+
+def near_obstacle_limit(
+    controller: mppi.MppiParams, near_speed: Float[Array, ""], grid: CostGrid, pose: Float[Array, " 3"]
+) -> mppi.MppiParams:
+    """The controller with its forward limit lowered to `near_speed` while the robot's cell of `grid` has a cost
+    (inflated, inscribed, lethal or unknown), as Nav2's regulated controllers slow down near obstacles."""
+    near = grid.cost_at(pose[:2]) > 0
+    v_max = controller.v_max.at[0].set(
+        jnp.where(near, jnp.minimum(near_speed, controller.v_max[0]), controller.v_max[0])
+    )
+    return eqx.tree_at(lambda c: c.v_max, controller, v_max)
 
 
 def idle_command(
@@ -315,7 +330,9 @@ def make_explore_loop(fleet, config: ExploreLoopConfig) -> ExploreFunctions:
         )
         goal, has_goal = goal_of(ex, rv)
         key, k_nav = jax.random.split(s.key)
-        nav_state, ctrl = nav.step(params.nav, nav_state, nav.NavInputs(pose=s.pose, goal=goal, grid=grid, key=k_nav))
+        controller = near_obstacle_limit(params.nav.controller, params.near_obstacle_speed, grid, s.pose)
+        nav_params = eqx.tree_at(lambda p: p.controller, params.nav, controller)
+        nav_state, ctrl = nav.step(nav_params, nav_state, nav.NavInputs(pose=s.pose, goal=goal, grid=grid, key=k_nav))
         can_turn = critics.turn_is_clear(s.pose, grid, params.nav.controller.footprint_disks)
         idle, held_at = idle_command(params.nav.controller, params.spin_rate, s.pose, can_turn, s.waiting, s.held_at)
         cmd = jnp.where(has_goal, ctrl.cmd, idle)
