@@ -319,6 +319,8 @@ def test_speed_limit_and_frontier_gain_reach_the_loop():
         ExploreConfig(frontier_gain=-1.0)
     with pytest.raises(ValueError, match="near_obstacle_speed"):
         ExploreConfig(near_obstacle_speed=0.0)
+    with pytest.raises(ValueError, match="max_speed"):
+        ExploreConfig(max_speed=float("inf"))
 
 
 def test_clear_cells_are_the_reachable_squares_no_box_touches():

@@ -110,11 +110,13 @@ class ExploreConfig:
         for name in ("n_robots", "samples", "horizon", "chunk_ticks", "band_height", "trace_robots"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("seconds", "spin_rate", "finish_time", "map_range", "max_speed"):
+        for name in ("seconds", "spin_rate", "finish_time", "map_range"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
-        if self.near_obstacle_speed is not None and not self.near_obstacle_speed > 0:
-            raise ValueError(f"near_obstacle_speed must be positive, got {self.near_obstacle_speed}")
+        for name in ("max_speed", "near_obstacle_speed"):  # None: max_speed everywhere
+            value = getattr(self, name)
+            if value is not None and not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value}")
         for name in ("frontier_gain", "revisit_after", "footprint_padding", "map_clear_range"):  # 0: off, never, none
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {getattr(self, name)}")

@@ -19,8 +19,8 @@ within `buffer_distance` m, smeared into one likelihood grid. The match gives an
 node (its covariance rotated into the node's frame); a response under `link_min_response` gives the
 odometry step instead, with `odom_fallback_std`, and so does a match whose pose lies farther from the odometry's
 prediction than `match_odometry_gate` (a chi-square, with a motion model of the step, `odometry_step_std`, plus the
-match's covariance; off by default): a scan matched 9 deg off, where the wheels turned by less than a degree, would
-otherwise carry its turn into every later pose until a loop closes.
+match's covariance times `match_cov_scale`; off by default): a scan matched 9 deg off, where the wheels turned by
+less than a degree, would otherwise carry its turn into every later pose until a loop closes.
 
 Leg-odometry constraints (`SlamSpec.lo_constraints`), one more edge from the last node:
   off            none: the node is where the scan matched (Karto's behaviour).
@@ -185,9 +185,10 @@ def _leg_edge(spec: SlamSpec, params: SlamParams, state: SlamState, last, inp: S
 
 
 def _match_odometry_chi2(params: SlamParams, pred, T_step, matched, cov_match) -> Float[Array, ""]:
-    """Chi-square (3 dof) of the matched pose against the odometry's prediction `pred`, in the new node's frame:
-    the odometry step `T_step` since the last node has the std `odometry_step_std` . (d, d, |dtheta|), d its
-    length, plus `ODOMETRY_STEP_FLOOR`; the match adds its covariance."""
+    """Chi-square (3 dof) of the matched pose in the frame of the odometry's prediction `pred`: the odometry step
+    `T_step` since the last node has the std `odometry_step_std` . (d, d, |dtheta|), d its length, plus
+    `ODOMETRY_STEP_FLOOR`; the match adds its covariance as `_match_buffer` gives it (times `match_cov_scale`, in
+    the matched pose's frame, which differs from the prediction's by the residual's heading)."""
     a, b, c = params.odometry_step_std
     d = jnp.hypot(T_step[0], T_step[1])
     std = jnp.stack([a * d, a * d, b * d + c * jnp.abs(T_step[2])]) + ODOMETRY_STEP_FLOOR

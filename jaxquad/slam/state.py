@@ -62,7 +62,8 @@ class SlamParams(eqx.Module):
     link_min_response: Float[Array, ""] = eqx.field(default_factory=lambda: _f(0.1))
     match_cov_scale: Float[Array, ""] = eqx.field(default_factory=lambda: _f(10.0))  # multiplies match covariances
     # a match farther than this chi-square (3 dof) from the odometry's prediction is replaced by the odometry step,
-    # whose std is odometry_step_std . (d, d, |dtheta|) for a step of length d: m/m, rad/m, rad/rad
+    # whose std is odometry_step_std . (d, d, |dtheta|) for a step of length d (m/m, rad/m, rad/rad), plus 1 mm and
+    # 1 mrad; the match's covariance enters times match_cov_scale
     match_odometry_gate: Float[Array, ""] = eqx.field(default_factory=lambda: _f(jnp.inf))
     odometry_step_std: Float[Array, "3"] = eqx.field(default_factory=lambda: _f([0.02, 0.01, 0.02]))
     odom_fallback_std: Float[Array, "3"] = eqx.field(default_factory=lambda: _f([0.05, 0.05, 0.05]))  # m, m, rad
