@@ -202,8 +202,8 @@ def _add_node(spec: SlamSpec, params: SlamParams, state: SlamState, pred, T_step
     first = j == 0
     matched, cov_match, response, good = _match_buffer(spec, params, state, pred, inp)
     x_last = state.graph.poses[last]
-    far = _match_odometry_chi2(params, pred, T_step, matched, cov_match) > params.match_odometry_gate
-    good = good & ~(far & ~first)
+    # (a first node has no buffer to match, so `good` is already False there; a NaN chi-square refuses nothing)
+    good = good & ~(_match_odometry_chi2(params, pred, T_step, matched, cov_match) > params.match_odometry_gate)
     fallback = _information(jnp.diag(params.odom_fallback_std**2))
     z_link = jnp.where(good, _between(x_last, matched), _between(x_last, pred))
     info_link = jnp.where(good, _information(cov_match), fallback)
