@@ -4,7 +4,7 @@
         [--robots 2] [--seconds 10] [--style aggressive] [--contacts truth] [--scan-hz 10]
         [--lo-constraints off velocity preintegrated] [--band-height 5] [--band-reduce median]
         [--map-scans every|nodes]
-        [--throughput 1 4096] [--devices 1 2] [--params slam.yaml] [--view-range 8] [--json rows.json]
+        [--throughput 1 4096] [--devices 1 2] [--params slam.yaml] [--view-range 8] [--pose-split] [--json rows.json]
 
 For each robot and world it simulates a fleet (`jaxquad.sim.rollout`, depth on, `--robots` robots in
 up to 4 distinct worlds), runs the estimator once (leg-inertial odometry with `--contacts`, the
@@ -20,9 +20,12 @@ default the longest reading the map reads, `jaxquad.slam.map_max_range`, `jaxqua
 loop closures per robot; the SLAM's wall time. A second table scores the graphs' edges at the true node
 poses, pooled over the fleet (`jaxquad.slam.report.edge_errors`): per edge kind the rms error (x, y,
 heading), the mean chi-square against the edges' information (3 when calibrated) and the edges off by more
-than 0.3 m. With --throughput B...: the real-time factor (scan time span / wall time, compile apart) of B
-robots' online SLAM in one jitted vmapped run (the fleet's robots repeated), split over each device count of
---devices in turn; robot-s per s = B x span / wall, the robots it keeps in real time.
+than 0.3 m. With --pose-split, a third table: the in-view IoU of the every-scan maps drawn at the final SLAM poses, at
+the true positions with the SLAM's headings, at the SLAM's positions with the true headings and at the true poses,
+mean over the robots, which tells whether the SLAM's positions or its headings cost the map more. With
+--throughput B...: the real-time factor (scan time span / wall time, compile apart) of B robots' online SLAM in one
+jitted vmapped run (the fleet's robots repeated), split over each device count of --devices in turn; robot-s per s =
+B x span / wall, the robots it keeps in real time.
 """
 
 from __future__ import annotations
@@ -41,7 +44,7 @@ def _stats(vals) -> str:
     return f"{vals.mean():.3f} +- {vals.std():.3f}" if vals.size else "-"
 
 
-def _cell(args, robot: str, world: str, rows: list, json_rows: list, edge_rows: list) -> dict:
+def _cell(args, robot: str, world: str, rows: list, json_rows: list, edge_rows: list, split_rows: list | None) -> dict:
     from jaxquad.estimate.laser import every_nth_frame, laser_inputs
     from jaxquad.sim.fleet import FleetConfig
     from jaxquad.sim.rollout import rollout
@@ -99,9 +102,49 @@ def _cell(args, robot: str, world: str, rows: list, json_rows: list, edge_rows: 
             f"{_stats(ms('recall'))} | {np.mean([r['loop_closures'] for r in reps]):.1f} | {wall:.1f} |"
         )
         json_rows.append({"robot": robot, "world": world, "lo_constraints": lo, "wall_s": wall, "robots": reps})
+        if split_rows is not None:
+            split = _pose_split(spec, params, x, final, robot_maps, in_view)
+            split_rows.append(f"| {robot} | {world} | {lo} | " + " | ".join(_stats(v) for v in split.values()) + " |")
+            print(split_rows[-1], file=sys.stderr)
         edge_rows += _edge_rows(robot, world, lo, reps)
         print(rows[-1], file=sys.stderr)
     return {"x": x, "grid": grid, "values": values}
+
+
+POSE_SPLIT = ("SLAM poses", "true positions, SLAM headings", "SLAM positions, true headings", "true poses")
+
+
+def _pose_split(spec, params, x: dict, final: np.ndarray, true_maps: list, in_view: list) -> dict[str, list[float]]:
+    """Per robot, the in-view IoU of the maps drawn from every scan (those the final trajectory has a pose for) at
+    each kind of pose of `POSE_SPLIT`: the SLAM's final poses, its positions or headings swapped for the true ones,
+    and the true poses."""
+    import jax.numpy as jnp
+
+    from jaxquad.kernels.lie import se2, xy_theta
+    from jaxquad.metrics import map_scores
+    from jaxquad.slam.mapping import fleet_maps, to_occupancy_map
+    from jaxquad.slam.report import robot_slice
+
+    true = np.asarray(x["gt"], np.float64)
+    final = np.asarray(final, np.float64)
+    ok = np.asarray(x["valid"], bool) & np.all(np.isfinite(final), axis=-1)
+    ranges = jnp.asarray(np.where(ok[..., None], x["ranges"], np.nan), jnp.float32)
+    poses = (
+        final,
+        np.concatenate([true[..., :2], final[..., 2:]], -1),
+        np.concatenate([final[..., :2], true[..., 2:]], -1),
+        true,
+    )
+    T_base_laser = se2(jnp.asarray(x["T_base_laser"], jnp.float32))
+    scores = {}
+    for name, base in zip(POSE_SPLIT, poses):
+        laser = xy_theta(se2(jnp.asarray(np.where(ok[..., None], base, 0.0), jnp.float32)) @ T_base_laser)
+        grids = fleet_maps(spec.grid, params.occupancy, laser, ranges, jnp.asarray(x["bearings"]), jnp.asarray(ok))
+        scores[name] = [
+            map_scores(to_occupancy_map(spec.grid, robot_slice(grids, i)), true_maps[i], in_view[i]).iou_in_view
+            for i in range(len(true_maps))
+        ]
+    return scores
 
 
 def _edge_rows(robot: str, world: str, lo: str, reps: list[dict]) -> list[str]:
@@ -201,6 +244,12 @@ def main() -> None:
         help="range of the ideal laser that decides the in-view walls, m (default: the longest reading the map "
         "reads, max_laser_range or occupancy_clear_range beyond it)",
     )
+    p.add_argument(
+        "--pose-split",
+        action="store_true",
+        help="also score the every-scan maps drawn at the true positions with the SLAM's headings, at the SLAM's "
+        "positions with the true headings and at the true poses (in-view IoU)",
+    )
     p.add_argument("--json", default=None, help="also write every robot's report to this JSON file")
     args = p.parse_args()
     if args.view_range is not None and not args.view_range > 0:
@@ -227,12 +276,17 @@ def main() -> None:
         "chi-square mean | off > 0.3 m |",
         "|---|---|---|---|---:|---:|---|---:|---:|---:|",
     ]
+    split = [] if args.pose_split else None
     json_rows, cell = [], None
     for robot in args.robot:
         for world in args.world:
-            cell = _cell(args, robot, world, rows, json_rows, edges)
+            cell = _cell(args, robot, world, rows, json_rows, edges, split)
     print("\n".join(rows))
     print("\n" + "\n".join(edges))
+    if split is not None:
+        print("\n| robot | world | LO constraints | " + " | ".join(f"IoU in view, {k}" for k in POSE_SPLIT) + " |")
+        print("|---|---|---|" + "---:|" * len(POSE_SPLIT))
+        print("\n".join(split))
     if args.throughput:
         speed = [
             "| robots | devices | scans | scan span s | compile s | run s | real-time factor | robot-s per s |",
