@@ -15,7 +15,9 @@ error and a cause (`lost_causes` counts them): `jump` where the error rose by mo
 the next, else `heading` where the final heading error is `HEADING_DEG` or more, else `drift`. Per collided run
 (the world's boxes rebuilt from the traces' world and seed) it prints the box nearest the footprint's outline at the
 last sample (a sample can precede the collision by up to `sample_s`: the distance need not be 0), the control mode
-then, whether the run was walking to a view goal and its SLAM error, and `collisions_by_box` counts them; with
+then, whether the run was walking to a view goal and its SLAM error, and `collisions_by_box` counts them (with the
+final maps in the traces, also what the run's map called the true map's occupied cells within `NEAR_M` of the
+footprint: `near_cells`, summed over the runs in `collisions_near_cells`); with
 the loop candidates in the traces (`exploration.py`'s `loop_events`), per lost run the accepted closure that changed
 its SLAM error most, the last accepted closure that carried its error from under `LOST_M` (the loop's lost limit) to
 `LOST_M` or more, and how many of its candidates were refused; and `loops`: how many candidates were accepted and
@@ -48,6 +50,8 @@ CHI2_BANDS = (0.0, 2.37, 6.25, 7.81, 11.34)
 # deg: a lost run's final heading error from which the heading counts as its cause: walls seen at the 4 m map range
 # then land 0.2 m astray, beyond what scan matching against the run's own map pulls back.
 HEADING_DEG = 3.0
+# m: at a collision, the true map's occupied cells this close to the footprint are the ones it met or was about to
+NEAR_M = 0.3
 
 
 def heading_error_deg(d: dict) -> np.ndarray:
@@ -172,9 +176,39 @@ def collision_summary(d: dict, world, footprint) -> dict:
             run["mode"] = MODES[int(d["mode"][k, i])]
         if "viewing" in d:
             run["viewing"] = bool(d["viewing"][k, i])
+        if "maps" in d:
+            run["near_cells"] = near_cells(d, i, (x, y, th), footprint)
         runs.append(run)
     by_box = Counter(str(r["box"]) for r in runs)
-    return {"collided_runs": runs, "collisions_by_box": dict(by_box.most_common())}
+    out = {"collided_runs": runs, "collisions_by_box": dict(by_box.most_common())}
+    if "maps" in d:
+        out["collisions_near_cells"] = {c: sum(r["near_cells"][c] for r in runs) for c in NEAR_CLASSES}
+    return out
+
+
+NEAR_CLASSES = ("cells", "unknown", "free", "uncertain", "occupied")
+
+
+def near_cells(d: dict, run: int, pose: tuple[float, float, float], footprint) -> dict:
+    """What run `run`'s final map (it ends at the collision) calls the true map's occupied cells within `NEAR_M` of
+    the footprint's rectangle (`footprint` = its centre and half extents in the base frame, m) at the true `pose`:
+    how many there are and how many the map holds unknown, free, uncertain and occupied (the map format's
+    thresholds). Unknown ones are faces no scan had seen, which the controller's footprint checks let it approach."""
+    from jaxquad.io.maps import FREE_THRESH, OCCUPIED_THRESH
+
+    truth, m = d["true_map"], d["maps"][run]
+    res, (ox, oy) = float(d["map_resolution"]), (float(v) for v in d["map_origin"][:2])
+    rows, cols = np.indices(truth.shape)
+    dx, dy = ox + (cols + 0.5) * res - pose[0], oy + (rows + 0.5) * res - pose[1]  # cell centres from the base
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    centre, half = (np.asarray(a, np.float64) for a in footprint)
+    bx, by = c * dx + s * dy - centre[0], -s * dx + c * dy - centre[1]  # in the base frame, from the rectangle's centre
+    dist = np.hypot(np.maximum(np.abs(bx) - half[0], 0.0), np.maximum(np.abs(by) - half[1], 0.0))
+    v = m[(truth > 100 * OCCUPIED_THRESH) & (dist <= NEAR_M)].astype(np.int16)
+    free = (v >= 0) & (v < 100 * FREE_THRESH)
+    occupied = v > 100 * OCCUPIED_THRESH
+    counts = (v.size, (v < 0).sum(), free.sum(), (v >= 0).sum() - free.sum() - occupied.sum(), occupied.sum())
+    return {k: int(n) for k, n in zip(NEAR_CLASSES, counts)}
 
 
 def _closure_change(d: dict) -> np.ndarray:

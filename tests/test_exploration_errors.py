@@ -307,4 +307,41 @@ def test_collided_runs_nearest_box_mode_and_view():
     assert run["run"] == 2 and run["box"] == 1 and run["box_distance_m"] == pytest.approx(-0.03, abs=1e-6)
     assert run["mode"] == "recovery" and run["viewing"] and run["slam_error_m"] == pytest.approx(0.003 * k, rel=1e-5)
     assert run["true_pose"] == pytest.approx(d["true_pose"][k, 2].tolist())
-    assert s["collisions_by_box"] == {"1": 1}
+    assert s["collisions_by_box"] == {"1": 1} and "collisions_near_cells" not in s
+    # with the final maps: box 1's true cells all unknown in run 2's map, box 0's occupied (out of reach)
+    res, origin = 0.05, np.array([-2.0, -2.0, 0.0])
+    cy, cx = np.indices((200, 200)) * res + origin[1::-1, None, None] + res / 2
+    in_box = [(np.abs(cx - c[0]) < h[0]) & (np.abs(cy - c[1]) < h[1]) for c, h in zip(center, half)]
+    d["true_map"] = np.where(in_box[0] | in_box[1], 100, 0).astype(np.int8)
+    d["maps"] = np.repeat(np.where(in_box[1], -1, d["true_map"])[None], 3, axis=0).astype(np.int8)
+    d["map_resolution"], d["map_origin"] = np.float64(res), origin
+    s = errors.collision_summary(d, world, (fc, fh))
+    near = s["collided_runs"][0]["near_cells"]
+    assert near["cells"] > 0 and near["unknown"] == near["cells"] and s["collisions_near_cells"] == near
+
+
+@pytest.mark.parametrize("heading", [0.0, np.pi / 2])
+def test_near_cells_count_the_wall_cells_within_reach_of_the_footprint(heading):
+    """A wall of occupied cells 0.125 m beyond the front of a 0.6 x 0.2 m footprint: its cells within 0.3 m have
+    centres with |lateral| <= 0.1 + sqrt(0.3^2 - 0.125^2) = 0.373 m, 14 of them (centres +-0.025 ... +-0.325), of
+    which the map holds 7 unknown, 4 occupied and 3 free. Turned by 90 deg with the wall as a row, the same; a
+    footprint left unturned there would reach none (0.325 m from its side)."""
+    res, n = 0.05, 40
+    truth = np.zeros((n, n), np.int8)
+    known = np.full(n, 0, np.int8)
+    centres = -1.0 + (np.arange(n) + 0.5) * res
+    known[centres < 0] = -1
+    known[(centres > 0) & (centres < 0.2)] = 100
+    wall = int(round((0.425 + 1.0) / res - 0.5))  # the cell whose centre is at 0.425 m
+    truth[:, wall] = 100
+    maps = np.zeros((1, n, n), np.int8)
+    maps[0, :, wall] = known
+    if heading:  # the wall ahead along +y: a row, the lateral axis along -x
+        truth, maps = truth.T.copy(), maps.transpose(0, 2, 1)[:, :, ::-1].copy()
+        truth = truth[:, ::-1].copy()
+    d = {"true_map": truth, "maps": maps, "map_resolution": np.float64(res), "map_origin": np.array([-1.0, -1.0, 0.0])}
+    near = errors.near_cells(d, 0, (0.0, 0.0, heading), (np.zeros(2), np.array([0.3, 0.1])))
+    assert near == {"cells": 14, "unknown": 7, "free": 3, "uncertain": 0, "occupied": 4}
+    d["maps"][0][d["maps"][0] == 100] = 50  # occupancy 50 is neither free nor occupied
+    near = errors.near_cells(d, 0, (0.0, 0.0, heading), (np.zeros(2), np.array([0.3, 0.1])))
+    assert near == {"cells": 14, "unknown": 7, "free": 3, "uncertain": 4, "occupied": 0}
