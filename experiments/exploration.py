@@ -56,6 +56,7 @@ def _cell_settings(args, robot: str, world: str, variant: str) -> dict:
     keep = ("runs", "seconds", "seed", "samples", "horizon", "every", "band_height", "band_reduce")
     keep += ("map_miss_probability", "map_hit_offset_cells", "revisit_after", "footprint_padding", "wall_heading")
     keep += ("map_clear_range", "loop_consistency_chi2", "frontier_gain", "max_speed", "near_obstacle_speed")
+    keep += ("outline_padding",)
     slam = load_params(args.slam_params) if args.slam_params else None  # the values: an edited file is another cell
     settings = {"robot": robot, "world": world, "variant": variant, "traces": args.traces, "slam_params": slam}
     settings |= {k: getattr(args, k) for k in keep}
@@ -94,7 +95,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         old = {"slam_params": None, "revisit_after": 0.0, "footprint_padding": 0.1, "low_obstacles": False}
         old |= {"wall_heading": "off", "map_hit_offset_cells": 0.0, "view_goals": False, "map_clear_range": 0.0}
         old |= {"leg_bias_sideways": 0.0, "loop_consistency_chi2": _file_gate(settings["slam_params"])}
-        old |= {"frontier_gain": 0.0, "max_speed": 0.26, "near_obstacle_speed": None}
+        old |= {"frontier_gain": 0.0, "max_speed": 0.26, "near_obstacle_speed": None, "outline_padding": 0.0}
         if old | saved.get("settings", {}) != settings:
             raise CheckpointError(f"{done}: a finished cell of other settings; remove it or choose another folder")
         print(f"{name}: finished earlier ({done})", file=sys.stderr, flush=True)
@@ -118,6 +119,7 @@ def run_cell(args, robot: str, world: str, variant: str, wall_budget_s: float | 
         wall_heading=args.wall_heading == "on",
         revisit_after=args.revisit_after,
         footprint_padding=args.footprint_padding,
+        outline_padding=args.outline_padding,
         map_clear_range=args.map_clear_range,
         leg_bias_sideways=args.leg_bias_sideways,
         loop_consistency_chi2=args.loop_consistency_chi2,

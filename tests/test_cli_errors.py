@@ -285,6 +285,7 @@ CASES = {
         ("explore --out {new} --map-hit-offset-cells -0.1", ["--map-hit-offset-cells"]),
         ("explore --out {new} --map-hit-offset-cells 1.5", ["--map-hit-offset-cells", "[0, 1]"]),
         ("explore --out {new} --frontier-gain -0.5", ["--frontier-gain"]),
+        ("explore --out {new} --outline-padding nan", ["--outline-padding"]),
         ("explore --out {new} --max-speed 0", ["--max-speed"]),
         ("explore --out {new} --near-obstacle-speed -0.1", ["--near-obstacle-speed"]),
         ("explore --out {new} --revisit-after -1", ["--revisit-after"]),

@@ -313,6 +313,13 @@ def test_speed_limit_and_frontier_gain_reach_the_loop():
         assert float(p.near_obstacle_speed) == pytest.approx(v_max[0])  # None: the limit everywhere
     cfg = ExploreConfig(n_robots=1, max_speed=0.5, near_obstacle_speed=0.26)
     assert float(_params(cfg, cfg.loop_config(), fleet, truth, 0.096).near_obstacle_speed) == pytest.approx(0.26)
+    outlines = [
+        np.asarray(_params(c, c.loop_config(), fleet, truth, 0.096).nav.controller.footprint_outline)
+        for c in (ExploreConfig(n_robots=1), ExploreConfig(n_robots=1, outline_padding=0.1))
+    ]
+    np.testing.assert_allclose(np.abs(outlines[1][:4] - outlines[0][:4]), 0.1, atol=1e-6)  # corners: both axes
+    with pytest.raises(ValueError, match="outline_padding"):
+        ExploreConfig(outline_padding=-0.1)
     with pytest.raises(ValueError, match="max_speed"):
         ExploreConfig(max_speed=0.0)
     with pytest.raises(ValueError, match="frontier_gain"):

@@ -110,3 +110,10 @@ def test_footprint_of_a_robot_sets_disks_and_inscribed_radius():
     padded_radius = float(padded.costmap.inscribed_radius)
     np.testing.assert_allclose(padded_radius, math.hypot(half[1], half[0] / 3) + 0.1, rtol=1e-6)
     np.testing.assert_array_equal(padded.controller.footprint_disks, disks)  # the disks' centres do not move
+    np.testing.assert_array_equal(padded.controller.footprint_outline, p.controller.footprint_outline)
+    # the outline's padding moves its corners out on both axes and its long sides' middles across
+    out = nav.NavParams.default(n_samples=8, horizon=4, footprint=(center, half), outline_padding=0.1)
+    hx, hy = half[0] + 0.1, half[1] + 0.1
+    want = np.array([[hx, hy], [hx, -hy], [-hx, hy], [-hx, -hy], [0.0, hy], [0.0, -hy]]) + center
+    np.testing.assert_allclose(np.asarray(out.controller.footprint_outline), want, atol=1e-6)
+    assert float(out.costmap.inscribed_radius) == float(p.costmap.inscribed_radius)

@@ -124,6 +124,13 @@ def add_loop_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"margin added to the footprint's covering disks in the costmap, against the SLAM pose's error, m "
         f"(default {c.footprint_padding:g})",
     )
+    parser.add_argument(
+        "--outline-padding",
+        type=float,
+        default=c.outline_padding,
+        help="margin by which the controller keeps the footprint's outline off lethal and unknown cells, m (unknown "
+        f"cells are not inflated; default {c.outline_padding:g}: the outline itself)",
+    )
 
 
 def check_loop_arguments(args: argparse.Namespace) -> None:
@@ -143,6 +150,7 @@ def check_loop_arguments(args: argparse.Namespace) -> None:
         ("--frontier-gain", args.frontier_gain),
         ("--revisit-after", args.revisit_after),
         ("--footprint-padding", args.footprint_padding),
+        ("--outline-padding", args.outline_padding),
         ("--map-clear-range", args.map_clear_range),
         ("--leg-bias-sideways", args.leg_bias_sideways),  # None: the robot's default
     ):
@@ -270,6 +278,7 @@ def run(args: argparse.Namespace) -> int:
         max_speed=args.max_speed,
         near_obstacle_speed=args.near_obstacle_speed,
         footprint_padding=args.footprint_padding,
+        outline_padding=args.outline_padding,
         map_clear_range=args.map_clear_range,
         leg_bias_sideways=args.leg_bias_sideways,
         loop_consistency_chi2=args.loop_consistency_chi2,

@@ -65,6 +65,10 @@ class ExploreConfig:
     # (the hit offset above). 100 runs per robot in the house, 600 s, 0.1 -> 0.15: collided + lost Go2 14 -> 3,
     # Badger 48 -> 23; runs at 95 % Go2 84 -> 78, Badger 22 -> 24 (README, exploration).
     footprint_padding: float = 0.15
+    # m the footprint's outline points are moved out in the controller's check against lethal and unknown cells
+    # (`kernels.critics.obstacle`): the costmap inflates no unknown cell, and the robots' collisions with the speed
+    # options were with box faces their maps held unknown (README, exploration); 0: the outline itself.
+    outline_padding: float = 0.0
     # m/s: prior std of the leg odometry's sideways velocity bias, which the SLAM estimates from its scan matches and
     # takes out of its leg edges (`jaxquad.slam.leg_bias`), in place of the SLAM file's leg_bias_std_sideways; 0: not
     # estimated; None: the robot's default (`LEG_BIAS_SIDEWAYS`).
@@ -117,7 +121,7 @@ class ExploreConfig:
             value = getattr(self, name)
             if value is not None and not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {value}")
-        for name in ("frontier_gain", "revisit_after", "footprint_padding", "map_clear_range"):  # 0: off, never, none
+        for name in ("frontier_gain", "revisit_after", "footprint_padding", "outline_padding", "map_clear_range"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {getattr(self, name)}")
         bias = leg_bias_sideways(self.robot, self.leg_bias_sideways)

@@ -58,9 +58,8 @@ def clear_cells(world, truth, reachable: np.ndarray) -> np.ndarray:
 
 def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_dt: float) -> xl.ExploreLoopParams:
     body = body_params(fleet, loop.odometry, 0.2, SCAN_RANGE)
-    nav_params = loop_nav_params(
-        truth.grid.shape, cfg.samples, cfg.horizon, REPLAN_TICKS, tick_dt, body, cfg.footprint_padding
-    )
+    pads = cfg.footprint_padding, cfg.outline_padding
+    nav_params = loop_nav_params(truth.grid.shape, cfg.samples, cfg.horizon, REPLAN_TICKS, tick_dt, body, *pads)
     v_max = nav_params.controller.v_max.at[0].set(cfg.max_speed)
     nav_params = eqx.tree_at(lambda p: p.controller.v_max, nav_params, v_max)
     values = cfg.slam_values()

@@ -144,11 +144,12 @@ def loop_nav_params(
     tick_dt: float,
     body: BodyParams,
     footprint_padding: float = 0.0,
+    outline_padding: float = 0.0,
 ) -> nav.NavParams:
     """The navigation numbers of a closed loop on a map of `grid_shape` cells: path capacity for a winding route
     across it (1.5 x its sides, one point every 4 cells), the robot's footprint from its body parameters (its
-    covering disks padded by `footprint_padding` m in the costmap), and the control tick (s) as MPPI's model
-    step."""
+    covering disks padded by `footprint_padding` m in the costmap, its outline's points moved `outline_padding` m
+    out), and the control tick (s) as MPPI's model step."""
     rows, cols = grid_shape
     params = nav.NavParams.default(
         n_samples=samples,
@@ -157,6 +158,7 @@ def loop_nav_params(
         replan_ticks=replan_ticks,
         footprint=(body.footprint_center, body.footprint_half),
         footprint_padding=footprint_padding,
+        outline_padding=outline_padding,
     )
     return eqx.tree_at(lambda p: p.controller.dt, params, jnp.asarray(tick_dt, jnp.float32))
 

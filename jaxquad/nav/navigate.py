@@ -41,18 +41,21 @@ class NavParams(eqx.Module):
         replan_ticks: int = 10,
         footprint: tuple | None = None,
         footprint_padding: float = 0.0,
+        outline_padding: float = 0.0,
     ) -> NavParams:
         """`footprint`: (centre, half extents) of the robot's planform rectangle in the base frame (m,
         `nav.missions.footprint`); the controller then checks the 3 disks covering it, with the costmap's
         inscribed radius at their radius, and keeps its corners and long sides' middles off lethal and unknown
         cells. Without it the robot is a disk of 0.2 m. `footprint_padding`
-        (m) is added to that radius: room for the error of the pose the robot navigates by."""
+        (m) is added to that radius: room for the error of the pose the robot navigates by. `outline_padding` (m)
+        moves the outline's points that far out of the rectangle (its corners diagonally), so that the body keeps
+        that margin also from unknown cells, which the costmap does not inflate."""
         costmap, controller = CostmapParams.default(), mppi.MppiParams.default(n_samples=n_samples, horizon=horizon)
         if footprint is not None:
             center, half = (jnp.asarray(a, jnp.float32) for a in footprint)
             disks, radius = footprint_disks(center, half)
             costmap = eqx.tree_at(lambda c: c.inscribed_radius, costmap, radius)
-            outline = footprint_outline(center, half)
+            outline = footprint_outline(center, half + outline_padding)
             controller = eqx.tree_at(lambda c: (c.footprint_disks, c.footprint_outline), controller, (disks, outline))
         costmap = eqx.tree_at(lambda c: c.inscribed_radius, costmap, costmap.inscribed_radius + footprint_padding)
         # 0.5 m goal tolerance of the planner: NavFn's in the authors' configuration.
