@@ -313,7 +313,8 @@ def test_collided_runs_nearest_box_mode_and_view():
     cy, cx = np.indices((200, 200)) * res + origin[1::-1, None, None] + res / 2
     in_box = [(np.abs(cx - c[0]) < h[0]) & (np.abs(cy - c[1]) < h[1]) for c, h in zip(center, half)]
     d["true_map"] = np.where(in_box[0] | in_box[1], 100, 0).astype(np.int8)
-    d["maps"] = np.repeat(np.where(in_box[1], -1, d["true_map"])[None], 3, axis=0).astype(np.int8)
+    d["maps"] = np.repeat(d["true_map"][None], 3, axis=0)  # runs 0 and 1 hold every box: only run 2's map counts
+    d["maps"][2] = np.where(in_box[1], -1, d["true_map"])
     d["map_resolution"], d["map_origin"] = np.float64(res), origin
     s = errors.collision_summary(d, world, (fc, fh))
     near = s["collided_runs"][0]["near_cells"]
@@ -324,8 +325,7 @@ def test_collided_runs_nearest_box_mode_and_view():
 def test_near_cells_count_the_wall_cells_within_reach_of_the_footprint(heading):
     """A wall of occupied cells 0.125 m beyond the front of a 0.6 x 0.2 m footprint: its cells within 0.3 m have
     centres with |lateral| <= 0.1 + sqrt(0.3^2 - 0.125^2) = 0.373 m, 14 of them (centres +-0.025 ... +-0.325), of
-    which the map holds 7 unknown, 4 occupied and 3 free. Turned by 90 deg with the wall as a row, the same; a
-    footprint left unturned there would reach none (0.325 m from its side)."""
+    which the map holds 7 unknown, 4 occupied and 3 free. Turned by 90 deg with the wall as a row, the same."""
     res, n = 0.05, 40
     truth = np.zeros((n, n), np.int8)
     known = np.full(n, 0, np.int8)
@@ -345,3 +345,27 @@ def test_near_cells_count_the_wall_cells_within_reach_of_the_footprint(heading):
     d["maps"][0][d["maps"][0] == 100] = 50  # occupancy 50 is neither free nor occupied
     near = errors.near_cells(d, 0, (0.0, 0.0, heading), (np.zeros(2), np.array([0.3, 0.1])))
     assert near == {"cells": 14, "unknown": 7, "free": 3, "uncertain": 4, "occupied": 0}
+
+
+def test_near_cells_against_a_sampled_footprint():
+    """A random map and a turned, off-centre footprint: the cells counted are those whose centre lies within NEAR_M of
+    the rectangle sampled at 2 mm (its filled area, in the world frame); cells within 5 mm of that limit are left
+    free in the true map, where sampling could decide either way."""
+    rng = np.random.default_rng(3)
+    res, n, origin = 0.05, 60, np.array([-1.5, -1.2, 0.0])
+    pose, centre, half = (0.12, -0.07, 0.6), np.array([0.08, -0.02]), np.array([0.32, 0.14])
+    u, v = np.meshgrid(np.arange(-half[0], half[0] + 1e-9, 0.002), np.arange(-half[1], half[1] + 1e-9, 0.002))
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    bx, by = u.ravel() + centre[0], v.ravel() + centre[1]
+    pts = np.stack([pose[0] + c * bx - s * by, pose[1] + s * bx + c * by], axis=1)  # the rectangle in the world
+    cy, cx = (np.indices((n, n)) + 0.5) * res + origin[1::-1, None, None]
+    ref = np.array([np.min(np.hypot(x[:, None] - pts[:, 0], y[:, None] - pts[:, 1]), axis=1) for x, y in zip(cx, cy)])
+    truth = np.where(rng.random((n, n)) < 0.5, 100, 0).astype(np.int8)
+    truth[np.abs(ref - errors.NEAR_M) < 0.005] = 0
+    m = rng.choice(np.array([-1, 5, 40, 90], np.int8), size=(n, n))
+    d = {"true_map": truth, "maps": m[None], "map_resolution": np.float64(res), "map_origin": origin}
+    hit = m[(truth == 100) & (ref <= errors.NEAR_M)]
+    want = {"cells": hit.size, "unknown": (hit == -1).sum(), "free": (hit == 5).sum(), "uncertain": (hit == 40).sum(),
+            "occupied": (hit == 90).sum()}  # fmt: skip
+    assert errors.near_cells(d, 0, pose, (centre, half)) == {k: int(x) for k, x in want.items()}
+    assert min(want.values()) > 0

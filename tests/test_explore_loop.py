@@ -294,8 +294,9 @@ def test_near_obstacle_limit_where_an_obstacle_or_the_unknown_is_within_the_infl
 
 
 def test_speed_limit_and_frontier_gain_reach_the_loop():
-    """`max_speed` is MPPI's forward limit (the others kept: the paper's DWB limits) and `frontier_gain` the frontier
-    cost's weight of a cluster's size, in the closed loop's parameters."""
+    """`max_speed` is MPPI's forward limit (the others kept: the paper's DWB limits), `frontier_gain` the frontier
+    cost's weight of a cluster's size and `outline_padding` the controller's outline, in the closed loop's
+    parameters."""
     from jaxquad.explore import ExploreConfig
     from jaxquad.explore.fleet import _params
     from jaxquad.sim import FleetConfig, build_fleet
@@ -317,7 +318,8 @@ def test_speed_limit_and_frontier_gain_reach_the_loop():
         np.asarray(_params(c, c.loop_config(), fleet, truth, 0.096).nav.controller.footprint_outline)
         for c in (ExploreConfig(n_robots=1), ExploreConfig(n_robots=1, outline_padding=0.1))
     ]
-    np.testing.assert_allclose(np.abs(outlines[1][:4] - outlines[0][:4]), 0.1, atol=1e-6)  # corners: both axes
+    corners = np.array([[1.0, 1.0], [1.0, -1.0], [-1.0, 1.0], [-1.0, -1.0]])  # footprint_outline's order
+    np.testing.assert_allclose(outlines[1][:4] - outlines[0][:4], 0.1 * corners, atol=1e-6)  # out on both axes
     with pytest.raises(ValueError, match="outline_padding"):
         ExploreConfig(outline_padding=-0.1)
     with pytest.raises(ValueError, match="max_speed"):

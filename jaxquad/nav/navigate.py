@@ -47,9 +47,10 @@ class NavParams(eqx.Module):
         `nav.missions.footprint`); the controller then checks the 3 disks covering it, with the costmap's
         inscribed radius at their radius, and keeps its corners and long sides' middles off lethal and unknown
         cells. Without it the robot is a disk of 0.2 m. `footprint_padding`
-        (m) is added to that radius: room for the error of the pose the robot navigates by. `outline_padding` (m)
-        moves the outline's points that far out of the rectangle (its corners diagonally), so that the body keeps
-        that margin also from unknown cells, which the costmap does not inflate."""
+        (m) is added to that radius: room for the error of the pose the robot navigates by. With `footprint`,
+        `outline_padding` (m) moves the outline's 6 points out of the rectangle (its corners by that much on each
+        axis, its long sides' middles across), so that the body keeps about that margin also from unknown cells,
+        which the costmap does not inflate."""
         costmap, controller = CostmapParams.default(), mppi.MppiParams.default(n_samples=n_samples, horizon=horizon)
         if footprint is not None:
             center, half = (jnp.asarray(a, jnp.float32) for a in footprint)
