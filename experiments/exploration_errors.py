@@ -194,17 +194,15 @@ def near_cells(d: dict, run: int, pose: tuple[float, float, float], footprint) -
     the footprint's rectangle (`footprint` = its centre and half extents in the base frame, m) at the true `pose`:
     how many there are and how many the map holds unknown, free, uncertain and occupied (the map format's
     thresholds). Unknown ones are faces no scan had seen, which the controller's footprint checks let it approach."""
-    from jaxquad.io.maps import FREE_THRESH, OCCUPIED_THRESH
+    from jaxquad.io.maps import FREE_THRESH, OCCUPIED_THRESH, OccupancyMap
+    from jaxquad.sim.worlds import rectangle_distances
 
-    truth, m = d["true_map"], d["maps"][run]
-    res, (ox, oy) = float(d["map_resolution"]), (float(v) for v in d["map_origin"][:2])
-    rows, cols = np.indices(truth.shape)
-    dx, dy = ox + (cols + 0.5) * res - pose[0], oy + (rows + 0.5) * res - pose[1]  # cell centres from the base
+    truth = OccupancyMap(d["true_map"], float(d["map_resolution"]), tuple(float(v) for v in d["map_origin"]))
     c, s = np.cos(pose[2]), np.sin(pose[2])
     centre, half = (np.asarray(a, np.float64) for a in footprint)
-    bx, by = c * dx + s * dy - centre[0], -s * dx + c * dy - centre[1]  # in the base frame, from the rectangle's centre
-    dist = np.hypot(np.maximum(np.abs(bx) - half[0], 0.0), np.maximum(np.abs(by) - half[1], 0.0))
-    v = m[(truth > 100 * OCCUPIED_THRESH) & (dist <= NEAR_M)].astype(np.int16)
+    centre_world = np.array([pose[0] + c * centre[0] - s * centre[1], pose[1] + s * centre[0] + c * centre[1]])
+    dist = rectangle_distances(centre_world[None], half[None], np.array([pose[2]]), truth.cell_centers())[..., 0]
+    v = d["maps"][run][(truth.grid > 100 * OCCUPIED_THRESH) & (dist <= NEAR_M)].astype(np.int16)
     free = (v >= 0) & (v < 100 * FREE_THRESH)
     occupied = v > 100 * OCCUPIED_THRESH
     counts = (v.size, (v < 0).sum(), free.sum(), (v >= 0).sum() - free.sum() - occupied.sum(), occupied.sum())

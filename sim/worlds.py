@@ -191,7 +191,9 @@ def _most_open(boxes: tuple, region: tuple, step: float = 0.1) -> np.ndarray:
     return xy[np.argmax(_signed_distance(*boxes, xy))]
 
 
-def _box_distances(center, half, yaw, xy):
+def rectangle_distances(center, half, yaw, xy) -> np.ndarray:
+    """(…, B) planar signed distance (m) from points `xy` (…, 2) to B rectangles of centres `center` (B, >= 2),
+    half extents `half` (B, >= 2) along their own axes and yaws `yaw` (B,) (< 0 inside)."""
     p = np.asarray(xy, np.float64)[..., None, :] - center[:, :2]  # (…, B, 2)
     c, s = np.cos(yaw), np.sin(yaw)
     local = np.stack([c * p[..., 0] + s * p[..., 1], -s * p[..., 0] + c * p[..., 1]], -1)
@@ -202,12 +204,12 @@ def _box_distances(center, half, yaw, xy):
 
 
 def _signed_distance(center, half, yaw, xy):
-    return np.min(_box_distances(center, half, yaw, xy), axis=-1)
+    return np.min(rectangle_distances(center, half, yaw, xy), axis=-1)
 
 
 def box_distances(world: World, xy: np.ndarray) -> np.ndarray:
     """(…, B) planar signed distance (m) from points `xy` (…, 2) to each box footprint (< 0 inside)."""
-    return _box_distances(world.center, world.half, world.yaw, xy)
+    return rectangle_distances(world.center, world.half, world.yaw, xy)
 
 
 def box_signed_distance(world: World, xy: np.ndarray) -> np.ndarray:

@@ -58,8 +58,16 @@ def clear_cells(world, truth, reachable: np.ndarray) -> np.ndarray:
 
 def _params(cfg: ExploreConfig, loop: xl.ExploreLoopConfig, fleet, truth, tick_dt: float) -> xl.ExploreLoopParams:
     body = body_params(fleet, loop.odometry, 0.2, SCAN_RANGE)
-    pads = cfg.footprint_padding, cfg.outline_padding
-    nav_params = loop_nav_params(truth.grid.shape, cfg.samples, cfg.horizon, REPLAN_TICKS, tick_dt, body, *pads)
+    nav_params = loop_nav_params(
+        truth.grid.shape,
+        cfg.samples,
+        cfg.horizon,
+        REPLAN_TICKS,
+        tick_dt,
+        body,
+        footprint_padding=cfg.footprint_padding,
+        outline_padding=cfg.outline_padding,
+    )
     v_max = nav_params.controller.v_max.at[0].set(cfg.max_speed)
     nav_params = eqx.tree_at(lambda p: p.controller.v_max, nav_params, v_max)
     values = cfg.slam_values()
